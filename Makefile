@@ -1,0 +1,36 @@
+# Two entry points: `make run` (the daemon on the demo config) and `make test` (lint, types, tests).
+# Both create the virtual environment under .venv on first use and reinstall when pyproject.toml changes.
+
+PYTHON ?= python3
+VENV := .venv
+BIN := $(VENV)/bin
+CONFIG ?= config/demo.yaml
+
+.PHONY: run test lint typecheck pytest format clean
+
+run: $(VENV)/.stamp-run
+	$(BIN)/avoidd run --config $(CONFIG)
+
+test: $(VENV)/.stamp-test
+	$(BIN)/ruff check avoidd tests
+	$(BIN)/ruff format --check avoidd tests
+	$(BIN)/mypy --strict avoidd
+	$(BIN)/pytest
+
+format: $(VENV)/.stamp-test
+	$(BIN)/ruff format avoidd tests
+	$(BIN)/ruff check --fix avoidd tests
+
+$(BIN)/python:
+	$(PYTHON) -m venv $(VENV)
+
+$(VENV)/.stamp-run: pyproject.toml | $(BIN)/python
+	$(BIN)/python -m pip install --quiet -e .
+	touch $@
+
+$(VENV)/.stamp-test: pyproject.toml | $(BIN)/python
+	$(BIN)/python -m pip install --quiet -e '.[test]'
+	touch $@ $(VENV)/.stamp-run
+
+clean:
+	rm -rf $(VENV) .mypy_cache .ruff_cache .pytest_cache

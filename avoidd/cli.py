@@ -1,0 +1,161 @@
+"""The ``avoidd`` command line: run, check-config, replay."""
+
+from __future__ import annotations
+
+import argparse
+import asyncio
+import logging
+import os
+import sys
+from collections.abc import Sequence
+from pathlib import Path
+
+from avoidd import __version__
+from avoidd.config import AppConfig, load_config
+from avoidd.errors import AvoiddError, ConfigError
+from avoidd.vision.calibration import Calibration, load_calibration
+
+logger = logging.getLogger("avoidd")
+
+EXIT_OK = 0
+EXIT_FAILURE = 1
+EXIT_CONFIG = 2
+
+
+def _setup_logging(level: str) -> None:
+    # Under journald the journal stamps each line; elsewhere a time helps.
+    if os.environ.get("JOURNAL_STREAM"):
+        fmt = "%(levelname)s %(name)s: %(message)s"
+    else:
+        fmt = "%(asctime)s %(levelname)s %(name)s: %(message)s"
+    logging.basicConfig(level=getattr(logging, level), format=fmt, stream=sys.stderr)
+
+
+def load_all(path: Path) -> tuple[AppConfig, dict[str, Calibration]]:
+    """Load a configuration and the calibration of each head, collecting every problem.
+
+    Args:
+        path: The configuration file.
+
+    Returns:
+        The configuration and the calibrations by head name.
+
+    Raises:
+        ConfigError: Any problem in the configuration or a calibration file.
+    """
+    config = load_config(path)
+    calibrations: dict[str, Calibration] = {}
+    problems: list[str] = []
+    for head in config.heads:
+        try:
+            calibration = load_calibration(head.calibration)
+        except ConfigError as exc:
+            problems.extend(exc.lines)
+            continue
+        source = head.source
+        rig = calibration.rig
+        if source.kind == "synthetic" and (calibration.maps is not None or rig.doffs_px != 0):
+            problems.append(
+                f"{head.calibration}: head '{head.name}' renders a synthetic scene, which needs "
+                "a 'rectified' calibration with doffs 0"
+            )
+        if source.kind == "v4l2" and (source.width, source.height) != (rig.width, rig.height):
+            problems.append(
+                f"{path}: heads.{head.name}.source asks {source.width}x{source.height} but "
+                f"{head.calibration} is for {rig.width}x{rig.height}; make them agree"
+            )
+        calibrations[head.name] = calibration
+    if problems:
+        raise ConfigError(problems)
+    return config, calibrations
+
+
+def _cmd_check_config(args: argparse.Namespace) -> int:
+    config, calibrations = load_all(args.config)
+    for head in config.heads:
+        rig = calibrations[head.name].rig
+        print(
+            f"head '{head.name}': {head.source.kind}, {rig.width}x{rig.height}, "
+            f"fx {rig.fx:.1f} px, baseline {rig.baseline_m:.4f} m, "
+            f"HFOV {rig.hfov_deg:.1f} deg, yaw {head.mount.yaw_deg:+.0f} deg"
+        )
+    print(f"MAVLink {config.mavlink.link} as system {config.mavlink.system_id}")
+    print(f"{args.config}: OK")
+    return EXIT_OK
+
+
+def _cmd_run(args: argparse.Namespace) -> int:
+    from avoidd.daemon import Daemon
+
+    config, calibrations = load_all(args.config)
+    return asyncio.run(Daemon(config, calibrations).run())
+
+
+def _cmd_replay(args: argparse.Namespace) -> int:
+    from avoidd.replay import format_summary, replay, select_head
+
+    config, calibrations = load_all(args.config)
+    head = select_head(config, args.head)
+    if args.input is not None and not args.input.exists():
+        raise ConfigError([f"--input {args.input}: not found; give a folder or a video file"])
+    args.out.parent.mkdir(parents=True, exist_ok=True)
+    with args.out.open("w", encoding="utf-8") as out:
+        summary = replay(config, calibrations[head.name], head, out, args.input, args.max_frames)
+    print(format_summary(summary))
+    print(f"wrote {summary.frames} lines to {args.out}")
+    return EXIT_OK
+
+
+def build_parser() -> argparse.ArgumentParser:
+    """The argument parser of the ``avoidd`` command."""
+    parser = argparse.ArgumentParser(
+        prog="avoidd", description="Stereo-vision obstacle avoidance for ArduPilot and PX4."
+    )
+    parser.add_argument("--version", action="version", version=f"avoidd {__version__}")
+    parser.add_argument(
+        "--log-level", default="INFO", choices=["DEBUG", "INFO", "WARNING", "ERROR"]
+    )
+    commands = parser.add_subparsers(dest="command", required=True)
+
+    run = commands.add_parser("run", help="run the daemon")
+    run.add_argument("--config", type=Path, required=True, help="YAML configuration file")
+    run.set_defaults(handler=_cmd_run)
+
+    check = commands.add_parser("check-config", help="validate a configuration, touch nothing")
+    check.add_argument("config", type=Path, help="YAML configuration file")
+    check.set_defaults(handler=_cmd_check_config)
+
+    rep = commands.add_parser("replay", help="process every frame offline into JSON lines")
+    rep.add_argument("--config", type=Path, required=True, help="YAML configuration file")
+    rep.add_argument("--input", type=Path, help="folder of left/right pairs or side-by-side video")
+    rep.add_argument("--max-frames", type=int, help="stop after N frames")
+    rep.add_argument("--head", help="head to replay (default: the first)")
+    rep.add_argument("--out", type=Path, required=True, help="output .jsonl file")
+    rep.set_defaults(handler=_cmd_replay)
+    return parser
+
+
+def main(argv: Sequence[str] | None = None) -> int:
+    """Run the ``avoidd`` command.
+
+    Args:
+        argv: Arguments without the program name (default: ``sys.argv[1:]``).
+
+    Returns:
+        The exit code: 0 ok, 1 runtime failure, 2 configuration error.
+    """
+    args = build_parser().parse_args(argv)
+    _setup_logging(args.log_level)
+    try:
+        code: int = args.handler(args)
+    except ConfigError as exc:
+        for line in exc.lines:
+            print(line, file=sys.stderr)
+        print("configuration invalid; nothing was started", file=sys.stderr)
+        return EXIT_CONFIG
+    except AvoiddError as exc:
+        logger.error("%s", exc)
+        return EXIT_FAILURE
+    except KeyboardInterrupt:
+        return EXIT_OK
+    return code

@@ -1,0 +1,333 @@
+"""The daemon's YAML configuration as frozen, typed models (version 1)."""
+
+from __future__ import annotations
+
+import re
+from pathlib import Path
+from typing import Annotated, Literal
+
+from pydantic import (
+    AfterValidator,
+    BaseModel,
+    ConfigDict,
+    Field,
+    ValidationInfo,
+    field_validator,
+    model_validator,
+)
+
+from avoidd.mavlink.url import LinkSpec, parse_connection
+from avoidd.yamlfile import load_yaml, validate_document
+
+
+class _Strict(BaseModel):
+    model_config = ConfigDict(frozen=True, extra="forbid")
+
+
+def _resolve_path(value: Path, info: ValidationInfo) -> Path:
+    base = (info.context or {}).get("base_dir")
+    path = value.expanduser()
+    if not path.is_absolute() and base is not None:
+        path = Path(base) / path
+    return path
+
+
+ConfigPath = Annotated[Path, AfterValidator(_resolve_path)]
+"""A path in the config; relative paths are relative to the config file's folder."""
+
+
+def _existing_file(value: Path) -> Path:
+    if not value.is_file():
+        raise ValueError(f"file not found: {value}; check the path (relative to the config file)")
+    return value
+
+
+def _existing_path(value: Path) -> Path:
+    if not value.exists():
+        raise ValueError(f"not found: {value}; check the path (relative to the config file)")
+    return value
+
+
+class MountConfig(_Strict):
+    """Pose of a stereo head in the body FRD frame (see ``avoidd.types.Mount``)."""
+
+    yaw_deg: float = Field(0.0, ge=-180.0, le=360.0)
+    pitch_deg: float = Field(0.0, ge=-90.0, le=90.0)
+    roll_deg: float = Field(0.0, ge=-180.0, le=180.0)
+    position_m: tuple[float, float, float] = (0.0, 0.0, 0.0)
+
+
+class SyntheticObstacleConfig(_Strict):
+    """An obstacle of the synthetic scene, standing on the ground.
+
+    ``forward_m``/``right_m`` locate the centre of its footprint relative to the camera. A box is
+    ``width_m`` across (right) and ``depth_m`` deep (forward); a pole is a vertical cylinder of
+    diameter ``width_m``.
+    """
+
+    shape: Literal["box", "pole"]
+    forward_m: float = Field(gt=0.0, le=200.0)
+    right_m: float = Field(0.0, ge=-200.0, le=200.0)
+    width_m: float = Field(1.0, gt=0.0, le=100.0)
+    depth_m: float = Field(1.0, gt=0.0, le=100.0)
+    height_m: float = Field(3.0, gt=0.0, le=100.0)
+
+
+def _default_obstacles() -> list[SyntheticObstacleConfig]:
+    return [
+        SyntheticObstacleConfig(
+            shape="box", forward_m=6.0, right_m=2.2, width_m=1.2, depth_m=1.0, height_m=3.0
+        ),
+        SyntheticObstacleConfig(shape="pole", forward_m=9.0, right_m=-3.5, width_m=0.3, height_m=5),
+        SyntheticObstacleConfig(
+            shape="box", forward_m=14.0, right_m=-0.5, width_m=3.0, depth_m=2.0, height_m=4.0
+        ),
+    ]
+
+
+class SyntheticSourceConfig(_Strict):
+    """A rendered scene: textured ground, boxes and poles, a far tree line; exact depth known."""
+
+    kind: Literal["synthetic"]
+    fps: float = Field(15.0, gt=0.0, le=240.0)
+    seed: int = Field(1, ge=0)
+    camera_height_m: float = Field(1.5, gt=0.05, le=100.0)
+    camera_pitch_deg: float = Field(0.0, ge=-45.0, le=45.0)
+    noise_std: float = Field(1.5, ge=0.0, le=20.0)
+    approach_speed_mps: float = Field(0.0, ge=0.0, le=30.0)
+    min_forward_m: float = Field(1.0, gt=0.0)
+    backdrop_m: float | None = Field(45.0, gt=1.0)
+    obstacles: list[SyntheticObstacleConfig] = Field(default_factory=_default_obstacles)
+
+
+class FilesSourceConfig(_Strict):
+    """Recorded frames: a folder with ``left/`` and ``right/`` images, or a side-by-side video."""
+
+    kind: Literal["files"]
+    path: Annotated[ConfigPath, AfterValidator(_existing_path)]
+    fps: float | None = Field(None, gt=0.0, le=240.0)
+    loop: bool = False
+
+
+class V4l2SourceConfig(_Strict):
+    """Live cameras through V4L2: two devices (left, right) or one side-by-side device."""
+
+    kind: Literal["v4l2"]
+    devices: list[str] = Field(min_length=1, max_length=2)
+    width: int = Field(gt=0, le=8192)
+    height: int = Field(gt=0, le=8192)
+    fps: float = Field(30.0, gt=0.0, le=480.0)
+    fourcc: str | None = "MJPG"
+    reopen_min_s: float = Field(0.5, gt=0.0)
+    reopen_max_s: float = Field(10.0, gt=0.0)
+
+    @field_validator("fourcc")
+    @classmethod
+    def _fourcc(cls, value: str | None) -> str | None:
+        if value is not None and len(value) != 4:
+            raise ValueError("a FOURCC has exactly 4 characters, e.g. MJPG or YUYV")
+        return value
+
+    @field_validator("devices")
+    @classmethod
+    def _devices(cls, value: list[str]) -> list[str]:
+        for device in value:
+            if not (device.startswith("/dev/") or device.isdigit()):
+                raise ValueError(
+                    f"'{device}' is not a device; use /dev/videoN or /dev/v4l/by-id/..."
+                )
+        return value
+
+
+SourceConfig = Annotated[
+    SyntheticSourceConfig | FilesSourceConfig | V4l2SourceConfig, Field(discriminator="kind")
+]
+
+
+class SgbmConfig(_Strict):
+    """OpenCV semi-global matching; ``p1``/``p2`` default to 8 and 32 times block_size squared."""
+
+    kind: Literal["sgbm"] = "sgbm"
+    min_disparity: int = Field(0, ge=-128, le=256)
+    num_disparities: int = Field(64, ge=16, le=512)
+    block_size: int = Field(5, ge=1, le=15)
+    p1: int | None = Field(None, gt=0)
+    p2: int | None = Field(None, gt=0)
+    uniqueness_ratio: int = Field(10, ge=0, le=100)
+    speckle_window_size: int = Field(100, ge=0)
+    speckle_range: int = Field(2, ge=0)
+    disp12_max_diff: int = Field(1, ge=-1)
+    pre_filter_cap: int = Field(63, ge=1, le=255)
+    mode: Literal["sgbm", "hh", "sgbm_3way", "hh4"] = "sgbm_3way"
+
+    @field_validator("num_disparities")
+    @classmethod
+    def _multiple_of_16(cls, value: int) -> int:
+        if value % 16:
+            raise ValueError(f"must be a multiple of 16; use {((value + 15) // 16) * 16}")
+        return value
+
+    @field_validator("block_size")
+    @classmethod
+    def _odd(cls, value: int) -> int:
+        if value % 2 == 0:
+            raise ValueError(f"must be odd; use {value + 1}")
+        return value
+
+    @model_validator(mode="after")
+    def _p2_above_p1(self) -> SgbmConfig:
+        if self.p1 is not None and self.p2 is not None and self.p2 <= self.p1:
+            raise ValueError("p2 must be greater than p1 (p2 penalises large disparity jumps)")
+        return self
+
+
+class SectorsConfig(_Strict):
+    """How image columns become the 72 distance bins (first version: a band of image rows).
+
+    Attributes:
+        row_band: Top and bottom of the rows used, as fractions of the image height.
+        min_pixels: Pixels a bin's nearest cluster needs before it counts as an obstacle, so that
+            a few speckles cannot create one.
+        cluster_window_px: Width of that cluster in disparity pixels (about the matcher's noise
+            band; see ``avoidd.perception.sectors.nearest_cluster_m``).
+        min_valid_fraction: Below this share of valid pixels a bin without an obstacle is
+            unknown rather than clear.
+    """
+
+    row_band: tuple[float, float] = (0.3, 0.5)
+    min_pixels: int = Field(20, ge=1)
+    cluster_window_px: float = Field(0.8, gt=0.0, le=16.0)
+    min_valid_fraction: float = Field(0.3, ge=0.0, le=1.0)
+
+    @field_validator("row_band")
+    @classmethod
+    def _band(cls, value: tuple[float, float]) -> tuple[float, float]:
+        top, bottom = value
+        if not 0.0 <= top < bottom <= 1.0:
+            raise ValueError("needs 0 <= top < bottom <= 1 (fractions of the image height)")
+        return value
+
+
+class PostprocessConfig(_Strict):
+    """Disparity post-processing after any matcher.
+
+    Attributes:
+        subpixel_refine: One Gauss-Newton step that removes the whole-pixel locking of SGBM.
+        refine_window_px: Window of that step (odd).
+        median_size: Median filter on the disparity (0 off, 3 or 5).
+    """
+
+    subpixel_refine: bool = True
+    refine_window_px: int = Field(7, ge=3, le=21)
+    median_size: Literal[0, 3, 5] = 5
+
+    @field_validator("refine_window_px")
+    @classmethod
+    def _odd_window(cls, value: int) -> int:
+        if value % 2 == 0:
+            raise ValueError(f"must be odd; use {value + 1}")
+        return value
+
+
+_HEAD_NAME = re.compile(r"^[a-z][a-z0-9_-]{0,31}$")
+
+
+class HeadConfig(_Strict):
+    """One stereo head: its calibration file, its mount, its source and its matcher."""
+
+    name: str
+    calibration: Annotated[ConfigPath, AfterValidator(_existing_file)]
+    mount: MountConfig = MountConfig()
+    source: SourceConfig
+    matcher: SgbmConfig = SgbmConfig()
+    postprocess: PostprocessConfig = PostprocessConfig()
+    sectors: SectorsConfig = SectorsConfig()
+
+    @field_validator("name")
+    @classmethod
+    def _name(cls, value: str) -> str:
+        if not _HEAD_NAME.match(value):
+            raise ValueError("use lower case letters, digits, '-' or '_', e.g. 'front'")
+        return value
+
+
+class ObstacleDistanceConfig(_Strict):
+    """OBSTACLE_DISTANCE output: rate and the sensor's range in centimetres."""
+
+    rate_hz: float = Field(15.0, ge=1.0, le=50.0)
+    min_distance_cm: int = Field(20, ge=1, le=65533)
+    max_distance_cm: int = Field(2000, ge=2, le=65533)
+
+    @model_validator(mode="after")
+    def _range(self) -> ObstacleDistanceConfig:
+        if self.max_distance_cm <= self.min_distance_cm:
+            raise ValueError("max_distance_cm must be greater than min_distance_cm")
+        return self
+
+
+class MavlinkConfig(_Strict):
+    """The MAVLink link and avoidd's identity on it."""
+
+    connection: str
+    system_id: int = Field(1, ge=1, le=255)
+    component_id: int = Field(196, ge=1, le=255)
+    heartbeat_hz: float = Field(1.0, gt=0.0, le=10.0)
+    obstacle_distance: ObstacleDistanceConfig = ObstacleDistanceConfig()
+
+    @field_validator("connection")
+    @classmethod
+    def _connection(cls, value: str) -> str:
+        parse_connection(value)
+        return value
+
+    @property
+    def link(self) -> LinkSpec:
+        """The parsed connection string."""
+        return parse_connection(self.connection)
+
+
+class PipelineConfig(_Strict):
+    """Daemon-wide timing.
+
+    Attributes:
+        max_age_ms: A scan older than this (from capture to send) is never sent; every bin goes
+            out as unknown instead.
+        log_interval_s: Period of the one-line status log.
+    """
+
+    max_age_ms: int = Field(300, ge=20, le=5000)
+    log_interval_s: float = Field(5.0, gt=0.0)
+
+
+class AppConfig(_Strict):
+    """The whole configuration file."""
+
+    version: Literal[1]
+    heads: list[HeadConfig] = Field(min_length=1, max_length=8)
+    mavlink: MavlinkConfig
+    pipeline: PipelineConfig = PipelineConfig()
+
+    @field_validator("heads")
+    @classmethod
+    def _unique_names(cls, value: list[HeadConfig]) -> list[HeadConfig]:
+        names = [head.name for head in value]
+        duplicates = sorted({name for name in names if names.count(name) > 1})
+        if duplicates:
+            raise ValueError(f"head names must be unique; rename {', '.join(duplicates)}")
+        return value
+
+
+def load_config(path: Path) -> AppConfig:
+    """Load and validate a configuration file.
+
+    Args:
+        path: The YAML file.
+
+    Returns:
+        The validated configuration; relative paths in it are resolved against its folder.
+
+    Raises:
+        ConfigError: One line per problem, naming file, line, key path, value and remedy.
+    """
+    doc = load_yaml(path)
+    return validate_document(doc, AppConfig, {"base_dir": path.parent.resolve()})

@@ -1,0 +1,394 @@
+"""The daemon: capture threads, compute workers, the MAVLink send loop, health and shutdown."""
+
+from __future__ import annotations
+
+import asyncio
+import contextlib
+import logging
+import signal
+import statistics
+import threading
+import time
+from collections import Counter, deque
+from dataclasses import dataclass, field
+
+from avoidd.config import AppConfig, HeadConfig
+from avoidd.errors import AvoiddError, BrokenFrame, SourceError, SourceExhausted
+from avoidd.mavlink import codec as mav
+from avoidd.mavlink.messages import sectors_to_cm, unknown_cm
+from avoidd.mavlink.transport import Transport, create_transport
+from avoidd.perception.sectors import merge_scans
+from avoidd.pipeline import HeadPipeline, HeadResult
+from avoidd.slot import LatestSlot
+from avoidd.sources import FrameSource, open_source
+from avoidd.types import SectorScan, StereoFrame
+from avoidd.vision.calibration import Calibration
+
+logger = logging.getLogger(__name__)
+
+_STATUSTEXT_MIN_INTERVAL_S = 0.5
+_BACKOFF_MIN_S = 0.5
+_BACKOFF_MAX_S = 10.0
+
+
+@dataclass
+class HeadStats:
+    """Counters of one head (written by its capture thread and compute task)."""
+
+    captured: int = 0
+    processed: int = 0
+    broken: int = 0
+    source_errors: int = 0
+    restarts: int = 0
+    latency_ms: deque[float] = field(default_factory=lambda: deque(maxlen=256))
+
+
+class Head:
+    """One stereo head at run time: its source thread, slot, pipeline and latest result.
+
+    Args:
+        config: The head's configuration.
+        calibration: Its loaded calibration.
+        max_range_m: Range treated as clear.
+        loop: The daemon's event loop.
+        stop: Set when the daemon shuts down.
+        announce: Thread-safe callback for operator-visible events (severity, text).
+    """
+
+    def __init__(
+        self,
+        config: HeadConfig,
+        calibration: Calibration,
+        max_range_m: float,
+        loop: asyncio.AbstractEventLoop,
+        stop: threading.Event,
+        announce: _Announcer,
+    ) -> None:
+        self.config = config
+        self.name = config.name
+        self.pipeline = HeadPipeline(config, calibration, max_range_m)
+        self.slot: LatestSlot[StereoFrame] = LatestSlot(loop)
+        self.latest: HeadResult | None = None
+        self.stats = HeadStats()
+        self.ended = False
+        self._stop = stop
+        self._announce = announce
+        self._thread = threading.Thread(target=self._capture, name=f"capture-{self.name}")
+
+    def start(self) -> None:
+        """Start the capture thread."""
+        self._thread.start()
+
+    def join(self, timeout_s: float) -> None:
+        """Wait for the capture thread to finish."""
+        self._thread.join(timeout_s)
+
+    def _backoff_range(self) -> tuple[float, float]:
+        source = self.config.source
+        if source.kind == "v4l2":
+            return source.reopen_min_s, source.reopen_max_s
+        return _BACKOFF_MIN_S, _BACKOFF_MAX_S
+
+    def _open(self) -> FrameSource:
+        return open_source(self.config.source, self.pipeline.rig, self.name, paced=True)
+
+    def _capture(self) -> None:
+        """Capture thread: read frames into the slot; reopen a lost source with backoff."""
+        low_s, high_s = self._backoff_range()
+        backoff_s = low_s
+        source: FrameSource | None = None
+        lost = False
+        while not self._stop.is_set():
+            if source is None:
+                try:
+                    source = self._open()
+                except SourceError as exc:
+                    self.stats.source_errors += 1
+                    logger.error("%s; retrying in %.1f s", exc, backoff_s)
+                    if not lost:
+                        self._announce(
+                            mav.MAV_SEVERITY_CRITICAL, f"avoidd: {self.name} camera lost"
+                        )
+                        lost = True
+                    self._stop.wait(backoff_s)
+                    backoff_s = min(backoff_s * 2, high_s)
+                    continue
+                except Exception:
+                    logger.exception("head '%s': source failed to open", self.name)
+                    self.stats.source_errors += 1
+                    self._stop.wait(backoff_s)
+                    backoff_s = min(backoff_s * 2, high_s)
+                    continue
+                if lost:
+                    self.stats.restarts += 1
+                    self._announce(mav.MAV_SEVERITY_NOTICE, f"avoidd: {self.name} camera back")
+                    lost = False
+                logger.info("head '%s': reading %s", self.name, source.description)
+                backoff_s = low_s
+            try:
+                frame = source.read()
+            except BrokenFrame as exc:
+                self.stats.broken += 1
+                logger.warning("%s", exc)
+                continue
+            except SourceExhausted:
+                logger.warning("head '%s': %s ended; no more data", self.name, source.description)
+                self._announce(mav.MAV_SEVERITY_WARNING, f"avoidd: {self.name} source ended")
+                self.ended = True
+                break
+            except Exception as exc:
+                self.stats.source_errors += 1
+                logger.error("head '%s': source lost (%s); reopening", self.name, exc)
+                self._announce(mav.MAV_SEVERITY_CRITICAL, f"avoidd: {self.name} camera lost")
+                lost = True
+                with contextlib.suppress(Exception):
+                    source.close()
+                source = None
+                self._stop.wait(backoff_s)
+                backoff_s = min(backoff_s * 2, high_s)
+                continue
+            self.stats.captured += 1
+            self.slot.put(frame)
+        if source is not None:
+            with contextlib.suppress(Exception):
+                source.close()
+
+    async def compute(self) -> None:
+        """Compute task: process the newest frame in a worker thread, keep the latest result."""
+        while True:
+            frame = await self.slot.get()
+            try:
+                result = await asyncio.to_thread(self.pipeline.process, frame)
+            except BrokenFrame as exc:
+                self.stats.broken += 1
+                logger.warning("%s", exc)
+                continue
+            except Exception:
+                self.stats.broken += 1
+                logger.exception("head '%s': frame %d failed", self.name, frame.seq)
+                continue
+            self.latest = result
+            self.stats.processed += 1
+            self.stats.latency_ms.append((time.monotonic_ns() - result.t_capture_ns) / 1e6)
+
+    def fresh_scan(self, now_ns: int, max_age_ns: int) -> SectorScan | None:
+        """The latest scan if it is younger than ``max_age_ns``, else None."""
+        latest = self.latest
+        if latest is None or now_ns - latest.t_capture_ns > max_age_ns:
+            return None
+        return latest.scan
+
+
+class _Announcer:
+    """Thread-safe queue of operator messages, sent as STATUSTEXT by the event loop."""
+
+    def __init__(self, loop: asyncio.AbstractEventLoop) -> None:
+        self._loop = loop
+        self.pending: deque[tuple[int, str]] = deque(maxlen=32)
+        self.wakeup = asyncio.Event()
+
+    def __call__(self, severity: int, text: str) -> None:
+        self._loop.call_soon_threadsafe(self._add, severity, text)
+
+    def _add(self, severity: int, text: str) -> None:
+        self.pending.append((severity, text))
+        self.wakeup.set()
+
+
+class Daemon:
+    """Wires the heads to the MAVLink link and runs until stopped.
+
+    Args:
+        config: The validated configuration.
+        calibrations: Loaded calibration of every head, by head name.
+    """
+
+    def __init__(self, config: AppConfig, calibrations: dict[str, Calibration]) -> None:
+        self.config = config
+        self._calibrations = calibrations
+        self._stop_threads = threading.Event()
+        self._stopping = asyncio.Event()
+        self.heads: list[Head] = []
+        self.sent: Counter[str] = Counter()
+        self.received: Counter[str] = Counter()
+        self.dropped_sends = 0
+        self._transport: Transport | None = None
+        self._codec = mav.Codec(config.mavlink.system_id, config.mavlink.component_id)
+        self._stale: set[str] = set()
+        self._started_ns = 0
+
+    def stop(self) -> None:
+        """Ask the daemon to shut down (safe from signal handlers in the loop)."""
+        self._stopping.set()
+
+    async def run(self) -> int:
+        """Run until SIGINT/SIGTERM or :meth:`stop`.
+
+        Returns:
+            The process exit code (0 on a clean shutdown).
+        """
+        loop = asyncio.get_running_loop()
+        for signum in (signal.SIGINT, signal.SIGTERM):
+            with contextlib.suppress(NotImplementedError, RuntimeError):
+                loop.add_signal_handler(signum, self.stop)
+        announcer = _Announcer(loop)
+        max_range_m = self.config.mavlink.obstacle_distance.max_distance_cm / 100.0
+        self.heads = [
+            Head(h, self._calibrations[h.name], max_range_m, loop, self._stop_threads, announcer)
+            for h in self.config.heads
+        ]
+        spec = self.config.mavlink.link
+        self._transport = create_transport(spec, self._on_receive)
+        try:
+            await self._transport.open()
+        except AvoiddError as exc:
+            logger.error("%s", exc)
+            return 1
+        self._started_ns = time.monotonic_ns()
+        logger.info(
+            "avoidd started: %d head(s) [%s], MAVLink %s as %d/%d",
+            len(self.heads),
+            ", ".join(h.name for h in self.heads),
+            spec,
+            self.config.mavlink.system_id,
+            self.config.mavlink.component_id,
+        )
+        announcer(mav.MAV_SEVERITY_INFO, "avoidd started")
+        for head in self.heads:
+            head.start()
+        tasks = [
+            asyncio.create_task(head.compute(), name=f"compute-{head.name}") for head in self.heads
+        ]
+        tasks += [
+            asyncio.create_task(self._send_loop(), name="send"),
+            asyncio.create_task(self._heartbeat_loop(), name="heartbeat"),
+            asyncio.create_task(self._statustext_loop(announcer), name="statustext"),
+            asyncio.create_task(self._log_loop(), name="log"),
+        ]
+        try:
+            await self._stopping.wait()
+        finally:
+            logger.info("avoidd stopping")
+            self._stop_threads.set()
+            for task in tasks:
+                task.cancel()
+            await asyncio.gather(*tasks, return_exceptions=True)
+            for head in self.heads:
+                await asyncio.to_thread(head.join, 5.0)
+            await self._transport.close()
+        logger.info("avoidd stopped; sent %s", dict(self.sent))
+        return 0
+
+    def _on_receive(self, data: bytes) -> None:
+        for message in self._codec.decode(data):
+            self.received[message.get_type()] += 1
+
+    def _send(self, kind: str, data: bytes) -> None:
+        assert self._transport is not None
+        if self._transport.send(data):
+            self.sent[kind] += 1
+        else:
+            self.dropped_sends += 1
+
+    def _current_scan(self) -> SectorScan | None:
+        now_ns = time.monotonic_ns()
+        max_age_ns = self.config.pipeline.max_age_ms * 1_000_000
+        fresh = [s for h in self.heads if (s := h.fresh_scan(now_ns, max_age_ns)) is not None]
+        return merge_scans(fresh) if fresh else None
+
+    async def _send_loop(self) -> None:
+        od = self.config.mavlink.obstacle_distance
+        period_s = 1.0 / od.rate_hz
+        next_s = time.monotonic()
+        while True:
+            scan = self._current_scan()
+            if scan is None:
+                distances = unknown_cm()
+                time_usec = time.monotonic_ns() // 1000
+            else:
+                distances = sectors_to_cm(scan, od.min_distance_cm, od.max_distance_cm)
+                time_usec = scan.t_capture_ns // 1000
+            self._send(
+                "OBSTACLE_DISTANCE",
+                self._codec.obstacle_distance(
+                    time_usec, distances, od.min_distance_cm, od.max_distance_cm
+                ),
+            )
+            next_s += period_s
+            delay_s = next_s - time.monotonic()
+            if delay_s < -period_s:
+                next_s = time.monotonic()
+                delay_s = 0.0
+            await asyncio.sleep(max(delay_s, 0.0))
+
+    def _health(self) -> int:
+        """Heartbeat system status; announces heads going stale or recovering."""
+        now_ns = time.monotonic_ns()
+        max_age_ns = self.config.pipeline.max_age_ms * 1_000_000
+        booting = now_ns - self._started_ns < 5_000_000_000
+        stale = {h.name for h in self.heads if h.fresh_scan(now_ns, max_age_ns) is None}
+        if booting and all(h.latest is None for h in self.heads):
+            return mav.MAV_STATE_BOOT
+        return mav.MAV_STATE_CRITICAL if stale else mav.MAV_STATE_ACTIVE
+
+    def _check_staleness(self, announce: _Announcer) -> None:
+        now_ns = time.monotonic_ns()
+        max_age_ns = self.config.pipeline.max_age_ms * 1_000_000
+        if now_ns - self._started_ns < 5_000_000_000 and all(h.latest is None for h in self.heads):
+            return
+        for head in self.heads:
+            stale = head.fresh_scan(now_ns, max_age_ns) is None
+            if stale and head.name not in self._stale:
+                self._stale.add(head.name)
+                logger.error("head '%s': data stale; sending unknown for its sectors", head.name)
+                announce(mav.MAV_SEVERITY_CRITICAL, f"avoidd: {head.name} stale, no avoidance")
+            elif not stale and head.name in self._stale:
+                self._stale.discard(head.name)
+                logger.warning("head '%s': data fresh again", head.name)
+                announce(mav.MAV_SEVERITY_NOTICE, f"avoidd: {head.name} recovered")
+
+    async def _heartbeat_loop(self) -> None:
+        period_s = 1.0 / self.config.mavlink.heartbeat_hz
+        while True:
+            self._send("HEARTBEAT", self._codec.heartbeat(self._health()))
+            await asyncio.sleep(period_s)
+
+    async def _statustext_loop(self, announce: _Announcer) -> None:
+        while True:
+            self._check_staleness(announce)
+            while announce.pending:
+                severity, text = announce.pending.popleft()
+                self._send("STATUSTEXT", self._codec.statustext(severity, text))
+                await asyncio.sleep(_STATUSTEXT_MIN_INTERVAL_S)
+            announce.wakeup.clear()
+            with contextlib.suppress(TimeoutError):
+                await asyncio.wait_for(announce.wakeup.wait(), timeout=0.05)
+
+    async def _log_loop(self) -> None:
+        interval_s = self.config.pipeline.log_interval_s
+        previous = {h.name: (h.stats.processed, h.slot.skipped, h.stats.broken) for h in self.heads}
+        while True:
+            await asyncio.sleep(interval_s)
+            parts = []
+            for head in self.heads:
+                processed, skipped, broken = (
+                    head.stats.processed,
+                    head.slot.skipped,
+                    head.stats.broken,
+                )
+                p0, s0, b0 = previous[head.name]
+                previous[head.name] = (processed, skipped, broken)
+                latency = statistics.fmean(head.stats.latency_ms) if head.stats.latency_ms else 0.0
+                fps = (processed - p0) / interval_s
+                parts.append(
+                    f"{head.name}: {fps:.1f} fps, skipped {skipped - s0}, "
+                    f"dropped {broken - b0}, latency {latency:.0f} ms"
+                )
+            scan = self._current_scan()
+            nearest = scan.nearest() if scan is not None else None
+            where = (
+                f"nearest {nearest.distance_m:.2f} m at {nearest.bearing_deg:+.0f} deg"
+                if nearest is not None
+                else ("nearest none" if scan is not None else "no fresh data")
+            )
+            logger.info("%s; %s; sent %d", "; ".join(parts), where, self.sent["OBSTACLE_DISTANCE"])

@@ -1,0 +1,35 @@
+"""Exception hierarchy of avoidd: every error names its subject and the remedy."""
+
+from __future__ import annotations
+
+
+class AvoiddError(Exception):
+    """Base class of every error avoidd raises on purpose."""
+
+
+class ConfigError(AvoiddError):
+    """A configuration or calibration file is invalid.
+
+    Attributes:
+        lines: One human-readable line per problem, ``FILE:LINE: key.path: message``.
+    """
+
+    def __init__(self, lines: list[str]) -> None:
+        super().__init__("\n".join(lines))
+        self.lines = lines
+
+
+class SourceError(AvoiddError):
+    """A frame source cannot be opened or read (camera lost, file unreadable)."""
+
+
+class BrokenFrame(AvoiddError):
+    """One frame is unusable (unreadable file, wrong size); it is dropped and counted."""
+
+
+class SourceExhausted(AvoiddError):
+    """A finite frame source (files, video) has delivered its last frame."""
+
+
+class LinkError(AvoiddError):
+    """A MAVLink connection string is invalid or the link cannot be opened."""

@@ -1,0 +1,1 @@
+"""MAVLink side of avoidd: connection strings, codec, messages and transports."""

@@ -1,0 +1,300 @@
+"""Byte transports for MAVLink on asyncio: UDP out/in, TCP client and serial, none blocking."""
+
+from __future__ import annotations
+
+import asyncio
+import contextlib
+import logging
+import os
+import termios
+import tty
+from collections.abc import Callable
+from typing import Any, Protocol
+
+from avoidd.errors import LinkError
+from avoidd.mavlink.url import LinkSpec
+
+logger = logging.getLogger(__name__)
+
+ReceiveCallback = Callable[[bytes], None]
+
+_MAX_WRITE_BUFFER = 64 * 1024
+
+
+class Transport(Protocol):
+    """Moves bytes; ``send`` never blocks and returns False when the bytes were dropped."""
+
+    @property
+    def connected(self) -> bool:
+        """Whether bytes sent now can leave."""
+        ...
+
+    async def open(self) -> None:
+        """Start the transport (binding, connecting in the background, opening the device)."""
+        ...
+
+    def send(self, data: bytes) -> bool:
+        """Queue bytes for sending."""
+        ...
+
+    async def close(self) -> None:
+        """Stop and release everything."""
+        ...
+
+
+class _Datagram(asyncio.DatagramProtocol):
+    def __init__(self, owner: _UdpTransport) -> None:
+        self._owner = owner
+
+    def datagram_received(self, data: bytes, addr: Any) -> None:
+        self._owner.datagram_received(data, addr)
+
+    def error_received(self, exc: Exception) -> None:
+        # ICMP port unreachable while nobody listens yet: expected with udpout.
+        self._owner.send_errors += 1
+
+
+class _UdpTransport:
+    def __init__(self, spec: LinkSpec, on_receive: ReceiveCallback) -> None:
+        self._spec = spec
+        self._on_receive = on_receive
+        self._transport: asyncio.DatagramTransport | None = None
+        self._peer: Any = None
+        self.send_errors = 0
+
+    @property
+    def connected(self) -> bool:
+        return self._transport is not None and self._peer is not None
+
+    def datagram_received(self, data: bytes, addr: Any) -> None:
+        if self._spec.kind == "udpin":
+            self._peer = addr
+        self._on_receive(data)
+
+    async def open(self) -> None:
+        loop = asyncio.get_running_loop()
+        spec = self._spec
+        try:
+            if spec.kind == "udpout":
+                transport, _ = await loop.create_datagram_endpoint(
+                    lambda: _Datagram(self), remote_addr=(spec.host, spec.port)
+                )
+                self._peer = (spec.host, spec.port)
+            else:
+                transport, _ = await loop.create_datagram_endpoint(
+                    lambda: _Datagram(self), local_addr=(spec.host, spec.port)
+                )
+        except OSError as exc:
+            raise LinkError(f"MAVLink {spec}: {exc.strerror or exc}; check the address") from exc
+        self._transport = transport
+
+    def send(self, data: bytes) -> bool:
+        if self._transport is None or self._peer is None:
+            return False
+        try:
+            if self._spec.kind == "udpout":
+                self._transport.sendto(data)
+            else:
+                self._transport.sendto(data, self._peer)
+        except OSError:
+            self.send_errors += 1
+            return False
+        return True
+
+    async def close(self) -> None:
+        if self._transport is not None:
+            self._transport.close()
+            self._transport = None
+
+
+class _TcpClient:
+    """TCP client that keeps reconnecting with backoff while the peer is away."""
+
+    def __init__(self, spec: LinkSpec, on_receive: ReceiveCallback) -> None:
+        self._spec = spec
+        self._on_receive = on_receive
+        self._writer: asyncio.StreamWriter | None = None
+        self._task: asyncio.Task[None] | None = None
+        self.reconnects = 0
+
+    @property
+    def connected(self) -> bool:
+        return self._writer is not None and not self._writer.is_closing()
+
+    async def open(self) -> None:
+        self._task = asyncio.create_task(self._run(), name=f"tcp {self._spec}")
+
+    async def _run(self) -> None:
+        backoff_s = 0.1
+        while True:
+            try:
+                reader, writer = await asyncio.wait_for(
+                    asyncio.open_connection(self._spec.host, self._spec.port), timeout=2.0
+                )
+            except (OSError, TimeoutError) as exc:
+                logger.debug("MAVLink %s: connect failed (%s)", self._spec, exc)
+                await asyncio.sleep(backoff_s)
+                backoff_s = min(backoff_s * 2, 1.0)
+                continue
+            backoff_s = 0.1
+            self._writer = writer
+            logger.info("MAVLink %s: connected", self._spec)
+            try:
+                while data := await reader.read(4096):
+                    self._on_receive(data)
+            except OSError as exc:
+                logger.debug("MAVLink %s: read failed (%s)", self._spec, exc)
+            finally:
+                self._writer = None
+                writer.close()
+                with contextlib.suppress(OSError):
+                    await writer.wait_closed()
+            self.reconnects += 1
+            logger.warning("MAVLink %s: connection lost; reconnecting", self._spec)
+
+    def send(self, data: bytes) -> bool:
+        writer = self._writer
+        if writer is None or writer.is_closing():
+            return False
+        if writer.transport.get_write_buffer_size() > _MAX_WRITE_BUFFER:
+            return False
+        writer.write(data)
+        return True
+
+    async def close(self) -> None:
+        if self._task is not None:
+            self._task.cancel()
+            with contextlib.suppress(asyncio.CancelledError):
+                await self._task
+            self._task = None
+        if self._writer is not None:
+            self._writer.close()
+            self._writer = None
+
+
+_BAUD_CONSTANTS = {
+    baud: getattr(termios, f"B{baud}")
+    for baud in (
+        9600,
+        19200,
+        38400,
+        57600,
+        115200,
+        230400,
+        460800,
+        500000,
+        921600,
+        1000000,
+        1500000,
+        2000000,
+        3000000,
+    )
+    if hasattr(termios, f"B{baud}")
+}
+
+
+class _Serial:
+    """A serial port in raw mode, read and written through the event loop (never blocking)."""
+
+    def __init__(self, spec: LinkSpec, on_receive: ReceiveCallback) -> None:
+        self._spec = spec
+        self._on_receive = on_receive
+        self._fd: int | None = None
+        self._pending = bytearray()
+
+    @property
+    def connected(self) -> bool:
+        return self._fd is not None
+
+    async def open(self) -> None:
+        spec = self._spec
+        if spec.baud not in _BAUD_CONSTANTS:
+            raise LinkError(f"MAVLink {spec}: baud rate {spec.baud} not supported here")
+        try:
+            fd = os.open(spec.device, os.O_RDWR | os.O_NOCTTY | os.O_NONBLOCK)
+        except OSError as exc:
+            hint = "is the user in group 'dialout'?" if exc.errno == 13 else "is it plugged in?"
+            raise LinkError(f"MAVLink {spec}: cannot open {spec.device}; {hint}") from exc
+        try:
+            tty.setraw(fd)
+            attrs = termios.tcgetattr(fd)
+            speed = _BAUD_CONSTANTS[spec.baud]
+            attrs[4] = attrs[5] = speed
+            attrs[2] |= termios.CLOCAL | termios.CREAD
+            termios.tcsetattr(fd, termios.TCSANOW, attrs)
+        except termios.error:
+            # A pty or some USB adapters refuse line settings; raw bytes still flow.
+            logger.debug("MAVLink %s: line settings not applied", spec)
+        self._fd = fd
+        asyncio.get_running_loop().add_reader(fd, self._readable)
+
+    def _readable(self) -> None:
+        if self._fd is None:
+            return
+        try:
+            data = os.read(self._fd, 4096)
+        except BlockingIOError:
+            return
+        except OSError as exc:
+            logger.warning("MAVLink %s: read failed (%s)", self._spec, exc)
+            self._drop()
+            return
+        if data:
+            self._on_receive(data)
+
+    def _writable(self) -> None:
+        self._flush()
+
+    def _flush(self) -> None:
+        if self._fd is None:
+            return
+        loop = asyncio.get_running_loop()
+        try:
+            written = os.write(self._fd, self._pending) if self._pending else 0
+        except BlockingIOError:
+            written = 0
+        except OSError as exc:
+            logger.warning("MAVLink %s: write failed (%s)", self._spec, exc)
+            self._drop()
+            return
+        del self._pending[:written]
+        if self._pending:
+            loop.add_writer(self._fd, self._writable)
+        else:
+            loop.remove_writer(self._fd)
+
+    def _drop(self) -> None:
+        if self._fd is None:
+            return
+        loop = asyncio.get_running_loop()
+        loop.remove_reader(self._fd)
+        loop.remove_writer(self._fd)
+        os.close(self._fd)
+        self._fd = None
+
+    def send(self, data: bytes) -> bool:
+        if self._fd is None or len(self._pending) > _MAX_WRITE_BUFFER:
+            return False
+        self._pending += data
+        self._flush()
+        return True
+
+    async def close(self) -> None:
+        self._drop()
+
+
+def create_transport(spec: LinkSpec, on_receive: ReceiveCallback) -> Transport:
+    """Build the transport a connection string asks for.
+
+    Args:
+        spec: The parsed connection string.
+        on_receive: Called in the event loop with every chunk of received bytes.
+
+    Returns:
+        An unopened transport; call ``await transport.open()``.
+    """
+    if spec.kind in ("udpout", "udpin"):
+        return _UdpTransport(spec, on_receive)
+    if spec.kind == "tcp":
+        return _TcpClient(spec, on_receive)
+    return _Serial(spec, on_receive)

@@ -1,0 +1,115 @@
+"""Parse pymavlink-style connection strings (udpout:, udpin:, tcp:, /dev/tty...,baud)."""
+
+from __future__ import annotations
+
+import ipaddress
+from dataclasses import dataclass
+from typing import Literal
+
+LinkKind = Literal["udpout", "udpin", "tcp", "serial"]
+
+DEFAULT_BAUD = 115200
+STANDARD_BAUDS = (
+    9600,
+    19200,
+    38400,
+    57600,
+    115200,
+    230400,
+    460800,
+    500000,
+    921600,
+    1000000,
+    1500000,
+    2000000,
+    3000000,
+)
+
+
+@dataclass(frozen=True)
+class LinkSpec:
+    """Where a MAVLink link goes.
+
+    Attributes:
+        kind: ``udpout`` (send to host:port), ``udpin`` (listen on host:port, answer the last
+            sender), ``tcp`` (client to host:port) or ``serial``.
+        host: Host name or address for network links.
+        port: Port for network links.
+        device: Device path for serial links.
+        baud: Baud rate for serial links.
+    """
+
+    kind: LinkKind
+    host: str = ""
+    port: int = 0
+    device: str = ""
+    baud: int = 0
+
+    def __str__(self) -> str:
+        if self.kind == "serial":
+            return f"{self.device},{self.baud}"
+        host = f"[{self.host}]" if ":" in self.host else self.host
+        return f"{self.kind}:{host}:{self.port}"
+
+
+def parse_connection(text: str) -> LinkSpec:
+    """Parse a connection string.
+
+    Args:
+        text: ``udpout:HOST:PORT``, ``udpin:HOST:PORT``, ``tcp:HOST:PORT`` or
+            ``/dev/ttyX[,BAUD]`` (IPv6 hosts in brackets, e.g. ``udpout:[::1]:14550``).
+
+    Returns:
+        The parsed specification.
+
+    Raises:
+        ValueError: The string is malformed; the message says what a valid one looks like.
+    """
+    text = text.strip()
+    if text.startswith("/dev/") or text.startswith("serial:"):
+        return _parse_serial(text.removeprefix("serial:"))
+    scheme, sep, rest = text.partition(":")
+    if not sep or scheme not in ("udpout", "udpin", "tcp"):
+        raise ValueError(
+            f"unknown connection '{text}'; use udpout:HOST:PORT, udpin:HOST:PORT, "
+            "tcp:HOST:PORT or /dev/ttyX,BAUD"
+        )
+    host, port = _split_host_port(text, rest)
+    kind: LinkKind = "udpout" if scheme == "udpout" else "udpin" if scheme == "udpin" else "tcp"
+    if kind in ("udpout", "tcp") and host in ("0.0.0.0", "::"):
+        raise ValueError(f"'{text}': {kind} needs a destination address, not a wildcard")
+    return LinkSpec(kind=kind, host=host, port=port)
+
+
+def _split_host_port(text: str, rest: str) -> tuple[str, int]:
+    if rest.startswith("["):
+        host, bracket, tail = rest[1:].partition("]")
+        if not bracket or not tail.startswith(":"):
+            raise ValueError(f"'{text}': an IPv6 host needs brackets and a port, e.g. [::1]:14550")
+        port_text = tail[1:]
+        try:
+            ipaddress.IPv6Address(host)
+        except ValueError as exc:
+            raise ValueError(f"'{text}': '{host}' is not an IPv6 address") from exc
+    else:
+        host, colon, port_text = rest.rpartition(":")
+        if not colon or not host:
+            raise ValueError(f"'{text}': missing host or port; write e.g. udpout:127.0.0.1:14550")
+    if not port_text.isdigit() or not 1 <= int(port_text) <= 65535:
+        raise ValueError(f"'{text}': port must be a number from 1 to 65535")
+    return host, int(port_text)
+
+
+def _parse_serial(text: str) -> LinkSpec:
+    device, _, baud_text = text.partition(",")
+    if not device.startswith("/dev/") or len(device) <= len("/dev/"):
+        raise ValueError(f"'{text}': a serial link is /dev/ttyX or /dev/ttyX,BAUD")
+    if not baud_text:
+        return LinkSpec(kind="serial", device=device, baud=DEFAULT_BAUD)
+    if not baud_text.isdigit():
+        raise ValueError(f"'{text}': baud rate '{baud_text}' is not a number")
+    baud = int(baud_text)
+    if baud not in STANDARD_BAUDS:
+        choices = ", ".join(str(b) for b in STANDARD_BAUDS)
+        raise ValueError(f"'{text}': unsupported baud rate {baud}; use one of {choices}")
+    return LinkSpec(kind="serial", device=device, baud=baud)

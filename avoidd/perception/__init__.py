@@ -1,0 +1,1 @@
+"""Perception: from depth to obstacles and the sector grid around the vehicle."""

@@ -1,0 +1,122 @@
+"""One head's vision pipeline: stereo frame in, sector scan and per-stage timings out."""
+
+from __future__ import annotations
+
+import time
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from avoidd.config import HeadConfig
+from avoidd.errors import BrokenFrame
+from avoidd.perception.sectors import sector_scan
+from avoidd.types import FloatArray, Mount, RectifiedRig, SectorScan, StereoFrame
+from avoidd.vision.calibration import Calibration
+from avoidd.vision.depth import depth_from_disparity
+from avoidd.vision.matchers import create_matcher
+from avoidd.vision.postprocess import median_smooth, refine_subpixel
+from avoidd.vision.preprocess import to_grey
+from avoidd.vision.rectify import rectify_pair
+
+STAGES = ("rectify", "preprocess", "match", "post", "depth", "sectors")
+
+
+@dataclass(frozen=True)
+class HeadResult:
+    """What one frame of one head produced.
+
+    Attributes:
+        head: The head's name.
+        seq: Frame number.
+        t_capture_ns: Capture time of the frame.
+        scan: The head's 72-bin scan.
+        depth_m: Depth map of the left view (NaN invalid).
+        valid_fraction: Share of pixels with a valid disparity.
+        timing_ms: Milliseconds per stage (see ``STAGES``).
+    """
+
+    head: str
+    seq: int
+    t_capture_ns: int
+    scan: SectorScan
+    depth_m: FloatArray = field(repr=False)
+    valid_fraction: float
+    timing_ms: dict[str, float]
+
+
+class HeadPipeline:
+    """Runs the vision stages of one head; one frame at a time (not thread-safe).
+
+    Args:
+        head: The head's configuration.
+        calibration: Its loaded calibration.
+        max_range_m: Readings at or beyond this range are clear.
+    """
+
+    def __init__(self, head: HeadConfig, calibration: Calibration, max_range_m: float) -> None:
+        self.name = head.name
+        self.rig: RectifiedRig = calibration.rig
+        self.mount = Mount(
+            head.mount.yaw_deg, head.mount.pitch_deg, head.mount.roll_deg, head.mount.position_m
+        )
+        self._maps = calibration.maps
+        self._matcher = create_matcher(head.matcher)
+        self._post = head.postprocess
+        self._sectors = head.sectors
+        self._max_range_m = max_range_m
+
+    def check_frame(self, frame: StereoFrame) -> None:
+        """Reject a frame whose size does not match the calibration.
+
+        Raises:
+            BrokenFrame: Wrong size or mismatched views.
+        """
+        expected = (self.rig.height, self.rig.width)
+        for view, image in (("left", frame.left), ("right", frame.right)):
+            if image.shape[:2] != expected:
+                raise BrokenFrame(
+                    f"head '{self.name}': {view} image is {image.shape[1]}x{image.shape[0]}, "
+                    f"calibration says {self.rig.width}x{self.rig.height}; "
+                    f"frame {frame.seq} dropped"
+                )
+
+    def process(self, frame: StereoFrame) -> HeadResult:
+        """Run every stage on one frame.
+
+        Args:
+            frame: The raw stereo pair.
+
+        Returns:
+            The head's result for this frame.
+
+        Raises:
+            BrokenFrame: The frame does not fit the calibration.
+        """
+        self.check_frame(frame)
+        timing: dict[str, float] = {}
+        clock = time.perf_counter()
+
+        def lap(stage: str) -> None:
+            nonlocal clock
+            now = time.perf_counter()
+            timing[stage] = (now - clock) * 1000.0
+            clock = now
+
+        left, right = rectify_pair(frame.left, frame.right, self._maps)
+        lap("rectify")
+        left, right = to_grey(left), to_grey(right)
+        lap("preprocess")
+        disparity = self._matcher.compute(left, right)
+        lap("match")
+        if self._post.subpixel_refine:
+            disparity = refine_subpixel(left, right, disparity, self._post.refine_window_px)
+        disparity = median_smooth(disparity, self._post.median_size)
+        lap("post")
+        depth = depth_from_disparity(disparity, self.rig)
+        lap("depth")
+        scan = sector_scan(
+            depth, self.rig, self.mount, self._sectors, self._max_range_m, frame.t_capture_ns
+        )
+        lap("sectors")
+        valid = float(np.count_nonzero(~np.isnan(disparity))) / disparity.size
+        return HeadResult(self.name, frame.seq, frame.t_capture_ns, scan, depth, valid, timing)

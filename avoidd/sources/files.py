@@ -1,0 +1,246 @@
+"""Recorded frames: a folder of left/right image pairs, or a side-by-side video file."""
+
+from __future__ import annotations
+
+import csv
+import logging
+from dataclasses import dataclass
+from pathlib import Path
+
+import cv2
+import numpy as np
+
+from avoidd.errors import BrokenFrame, SourceError, SourceExhausted
+from avoidd.sources.base import Pacer
+from avoidd.types import Image, StereoFrame
+
+logger = logging.getLogger(__name__)
+
+IMAGE_SUFFIXES = frozenset({".png", ".jpg", ".jpeg", ".bmp", ".tif", ".tiff", ".pgm", ".ppm"})
+DEFAULT_FPS = 10.0
+
+
+@dataclass(frozen=True)
+class _Pair:
+    left: Path
+    right: Path
+    t_capture_ns: int | None
+
+
+def _images(folder: Path) -> list[Path]:
+    return sorted(p for p in folder.iterdir() if p.suffix.lower() in IMAGE_SUFFIXES)
+
+
+def _read_index(folder: Path, path: Path) -> list[_Pair]:
+    """Pairs listed in ``frames.csv`` (``t_capture_ns``, optionally ``left`` and ``right``)."""
+    left_dir, right_dir = folder / "left", folder / "right"
+    with path.open(newline="", encoding="utf-8") as handle:
+        reader = csv.DictReader(handle)
+        fields = set(reader.fieldnames or ())
+        if "t_capture_ns" not in fields:
+            raise SourceError(f"{path}: needs a header with a 't_capture_ns' column")
+        rows = list(reader)
+    named = {"left", "right"} <= fields
+    left_images = [] if named else _images(left_dir)
+    right_images = [] if named else _images(right_dir)
+    if not named and len(rows) != len(left_images):
+        raise SourceError(
+            f"{path}: {len(rows)} rows but {len(left_images)} images in left/; "
+            "add 'left' and 'right' columns or make the counts agree"
+        )
+    pairs = []
+    for number, row in enumerate(rows):
+        try:
+            t_ns = int(row["t_capture_ns"])
+        except (TypeError, ValueError) as exc:
+            line = number + 2
+            raise SourceError(f"{path}:{line}: t_capture_ns is not an integer") from exc
+        if named:
+            pairs.append(_Pair(left_dir / row["left"], right_dir / row["right"], t_ns))
+        else:
+            pairs.append(_Pair(left_images[number], right_images[number], t_ns))
+    return pairs
+
+
+def list_pairs(folder: Path) -> list[_Pair]:
+    """The stereo pairs of a folder, in order.
+
+    Args:
+        folder: Holds ``left/`` and ``right/`` image folders and optionally ``frames.csv``.
+
+    Returns:
+        The pairs; capture times come from ``frames.csv`` when it exists.
+
+    Raises:
+        SourceError: The layout is wrong or the two folders disagree.
+    """
+    left_dir, right_dir = folder / "left", folder / "right"
+    if not left_dir.is_dir() or not right_dir.is_dir():
+        raise SourceError(f"{folder}: expected 'left/' and 'right/' folders of images")
+    index = folder / "frames.csv"
+    if index.is_file():
+        return _read_index(folder, index)
+    left_images, right_images = _images(left_dir), _images(right_dir)
+    if len(left_images) != len(right_images):
+        raise SourceError(
+            f"{folder}: left/ has {len(left_images)} images, right/ has {len(right_images)}; "
+            "pairs are matched by sorted name, so both need the same count"
+        )
+    if not left_images:
+        raise SourceError(f"{folder}: no images in left/ (looked for {sorted(IMAGE_SUFFIXES)})")
+    return [_Pair(a, b, None) for a, b in zip(left_images, right_images, strict=True)]
+
+
+class FolderSource:
+    """Stereo pairs from ``left/`` and ``right/`` image folders.
+
+    Args:
+        folder: The folder.
+        fps: Playback rate when paced; default from ``frames.csv`` times, else 10.
+        paced: Deliver frames in real time stamped with the monotonic clock (daemon) rather
+            than as fast as possible with their recorded times (replay).
+        loop: Start over after the last pair instead of ending.
+    """
+
+    def __init__(self, folder: Path, fps: float | None, paced: bool, loop: bool) -> None:
+        self._folder = folder
+        self._pairs = list_pairs(folder)
+        self._loop = loop
+        self._paced = paced
+        self._fps = fps or self._recorded_fps() or DEFAULT_FPS
+        self._pacer = Pacer(self._fps) if paced else None
+        self._index = 0
+        self._seq = 0
+
+    def _recorded_fps(self) -> float | None:
+        times = [p.t_capture_ns for p in self._pairs if p.t_capture_ns is not None]
+        if len(times) < 2 or times[-1] <= times[0]:
+            return None
+        return (len(times) - 1) / ((times[-1] - times[0]) / 1e9)
+
+    @property
+    def description(self) -> str:
+        """What the source reads, for logs and errors."""
+        return f"image folder {self._folder} ({len(self._pairs)} pairs)"
+
+    def __len__(self) -> int:
+        return len(self._pairs)
+
+    def read(self) -> StereoFrame:
+        """Deliver the next pair; raises BrokenFrame for an unreadable one."""
+        if self._index >= len(self._pairs):
+            if not self._loop:
+                raise SourceExhausted(self.description)
+            self._index = 0
+        pair = self._pairs[self._index]
+        self._index += 1
+        seq = self._seq
+        self._seq += 1
+        if self._pacer is not None:
+            t_capture_ns = self._pacer.wait()
+        elif pair.t_capture_ns is not None:
+            t_capture_ns = pair.t_capture_ns
+        else:
+            t_capture_ns = int(seq * 1e9 / self._fps)
+        left = cv2.imread(str(pair.left), cv2.IMREAD_UNCHANGED)
+        right = cv2.imread(str(pair.right), cv2.IMREAD_UNCHANGED)
+        if left is None or right is None:
+            bad = pair.left if left is None else pair.right
+            raise BrokenFrame(f"{bad}: unreadable image; frame {seq} dropped")
+        return StereoFrame(
+            seq, t_capture_ns, _as_uint8(left, pair.left), _as_uint8(right, pair.right)
+        )
+
+    def close(self) -> None:
+        """Nothing to release."""
+
+
+def _as_uint8(image: np.ndarray, path: Path) -> Image:
+    if image.dtype == np.uint8:
+        return np.asarray(image, dtype=np.uint8)
+    if image.dtype == np.uint16:
+        return np.asarray(image >> 8, dtype=np.uint8)
+    raise BrokenFrame(f"{path}: unsupported pixel type {image.dtype}")
+
+
+class SideBySideVideoSource:
+    """Stereo pairs from a video whose frames hold the left view beside the right view.
+
+    Args:
+        path: The video file.
+        fps: Playback rate when paced; default the video's own rate.
+        paced: Deliver in real time (daemon) rather than as fast as possible (replay).
+        loop: Start over at the end instead of ending.
+    """
+
+    def __init__(self, path: Path, fps: float | None, paced: bool, loop: bool) -> None:
+        self._path = path
+        self._loop = loop
+        self._capture = self._open()
+        video_fps = float(self._capture.get(cv2.CAP_PROP_FPS) or 0.0)
+        self._fps = fps or (video_fps if 0 < video_fps < 1000 else DEFAULT_FPS)
+        self._pacer = Pacer(self._fps) if paced else None
+        self._seq = 0
+
+    def _open(self) -> cv2.VideoCapture:
+        capture = cv2.VideoCapture(str(self._path))
+        if not capture.isOpened():
+            raise SourceError(f"{self._path}: cannot open the video; is it a supported format?")
+        return capture
+
+    @property
+    def description(self) -> str:
+        """What the source reads, for logs and errors."""
+        return f"side-by-side video {self._path}"
+
+    def read(self) -> StereoFrame:
+        """Deliver the next frame split into its two halves."""
+        ok, image = self._capture.read()
+        if not ok and self._loop and self._seq > 0:
+            self._capture.release()
+            self._capture = self._open()
+            ok, image = self._capture.read()
+        if not ok or image is None:
+            raise SourceExhausted(self.description)
+        seq = self._seq
+        self._seq += 1
+        if self._pacer is not None:
+            t_capture_ns = self._pacer.wait()
+        else:
+            position_ms = float(self._capture.get(cv2.CAP_PROP_POS_MSEC) or 0.0)
+            t_capture_ns = int(position_ms * 1e6) if position_ms > 0 else int(seq * 1e9 / self._fps)
+        width = image.shape[1]
+        if width % 2:
+            raise BrokenFrame(f"{self._path}: frame width {width} is odd; not side-by-side")
+        half = width // 2
+        left = np.ascontiguousarray(image[:, :half], dtype=np.uint8)
+        right = np.ascontiguousarray(image[:, half:], dtype=np.uint8)
+        return StereoFrame(seq, t_capture_ns, left, right)
+
+    def close(self) -> None:
+        """Release the video."""
+        self._capture.release()
+
+
+def open_files(
+    path: Path, fps: float | None, paced: bool, loop: bool
+) -> FolderSource | SideBySideVideoSource:
+    """Open a folder of pairs or a side-by-side video, whichever ``path`` is.
+
+    Args:
+        path: Folder with ``left/`` and ``right/``, or a video file.
+        fps: Playback rate when paced.
+        paced: Real-time delivery (daemon) or as fast as possible (replay).
+        loop: Start over at the end.
+
+    Returns:
+        The source.
+
+    Raises:
+        SourceError: The path is neither.
+    """
+    if path.is_dir():
+        return FolderSource(path, fps, paced, loop)
+    if path.is_file():
+        return SideBySideVideoSource(path, fps, paced, loop)
+    raise SourceError(f"{path}: not found; give a folder with left/ and right/ or a video file")

@@ -1,0 +1,143 @@
+"""Records that travel between the pipeline stages (frames, rigs, mounts, sector scans)."""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, field
+from typing import NamedTuple
+
+import numpy as np
+import numpy.typing as npt
+
+Image = npt.NDArray[np.uint8]
+"""An 8-bit image, grey (H, W) or BGR (H, W, 3)."""
+
+FloatArray = npt.NDArray[np.float32]
+"""A float32 array; NaN marks an invalid (unmeasured) value."""
+
+IdArray = npt.NDArray[np.int16]
+"""Per-pixel surface ids of a synthetic view."""
+
+SECTOR_COUNT = 72
+SECTOR_WIDTH_DEG = 5.0
+
+
+class GroundTruth(NamedTuple):
+    """Exact geometry of the left view of a synthetic frame.
+
+    Attributes:
+        depth_m: Depth along the optical axis, ``inf`` for sky.
+        object_id: Surface id per pixel (0 sky, 1 ground, 2 tree line, 3+ obstacles).
+        points_m: (H, W, 3) surface points relative to the left camera centre in the level rig
+            frame (X forward, Y right, Z down); ``inf`` for sky.
+    """
+
+    depth_m: FloatArray
+    object_id: IdArray
+    points_m: FloatArray
+
+
+class StereoFrame(NamedTuple):
+    """One stereo pair as a source delivers it.
+
+    Attributes:
+        seq: Frame number assigned by the source, increasing by one per delivered frame.
+        t_capture_ns: Capture time, monotonic clock in nanoseconds (or the recorded time).
+        left: Left image (the reference view of the disparity map).
+        right: Right image.
+        truth: Exact geometry, for synthetic sources only.
+    """
+
+    seq: int
+    t_capture_ns: int
+    left: Image
+    right: Image
+    truth: GroundTruth | None = None
+
+
+@dataclass(frozen=True)
+class RectifiedRig:
+    """Intrinsics of a rectified stereo pair (both views share fx, fy, cy).
+
+    Depth follows ``Z = fx * baseline_m / (d + doffs_px)`` where ``d`` is the disparity in pixels
+    and ``doffs_px`` the difference of the principal points (``cx_right - cx_left``).
+    """
+
+    width: int
+    height: int
+    fx: float
+    fy: float
+    cx: float
+    cy: float
+    baseline_m: float
+    doffs_px: float = 0.0
+
+    @property
+    def hfov_deg(self) -> float:
+        """Horizontal field of view of the left view in degrees."""
+        left = math.atan(self.cx / self.fx)
+        right = math.atan((self.width - 1 - self.cx) / self.fx)
+        return math.degrees(left + right)
+
+
+@dataclass(frozen=True)
+class Mount:
+    """Pose of a stereo head on the vehicle, body FRD frame.
+
+    Attributes:
+        yaw_deg: Rotation about body down, positive turns the camera to the right.
+        pitch_deg: Rotation about body right, positive tilts the camera up.
+        roll_deg: Rotation about the optical axis, positive is right side down.
+        position_m: (forward, right, down) of the left camera centre relative to the body origin.
+    """
+
+    yaw_deg: float = 0.0
+    pitch_deg: float = 0.0
+    roll_deg: float = 0.0
+    position_m: tuple[float, float, float] = (0.0, 0.0, 0.0)
+
+
+@dataclass(frozen=True)
+class SectorScan:
+    """Distances around the vehicle in 72 bins of 5 degrees (body FRD, bin i centred on i*5 deg).
+
+    Values are metres. ``NaN`` means unknown (not covered, not measured, or stale) and ``inf``
+    means measured clear up to the sensor's maximum range.
+    """
+
+    t_capture_ns: int
+    distance_m: FloatArray = field(repr=False)
+
+    @staticmethod
+    def unknown(t_capture_ns: int = 0) -> SectorScan:
+        """A scan in which every bin is unknown."""
+        return SectorScan(t_capture_ns, np.full(SECTOR_COUNT, np.nan, dtype=np.float32))
+
+    def nearest(self) -> Nearest | None:
+        """The closest measured bin, or None if no bin holds a finite distance."""
+        finite = np.isfinite(self.distance_m)
+        if not finite.any():
+            return None
+        masked = np.where(finite, self.distance_m, np.inf)
+        index = int(np.argmin(masked))
+        return Nearest(float(masked[index]), bin_bearing_deg(index))
+
+
+class Nearest(NamedTuple):
+    """The closest obstacle: distance in metres and bearing in degrees (-180, 180], FRD."""
+
+    distance_m: float
+    bearing_deg: float
+
+
+def bin_bearing_deg(index: int) -> float:
+    """Bearing of the centre of sector ``index``, wrapped into (-180, 180]."""
+    return wrap_deg(index * SECTOR_WIDTH_DEG)
+
+
+def wrap_deg(angle_deg: float) -> float:
+    """Wrap an angle into (-180, 180] degrees."""
+    wrapped = math.fmod(angle_deg + 180.0, 360.0)
+    if wrapped <= 0.0:
+        wrapped += 360.0
+    return wrapped - 180.0

@@ -1,0 +1,1 @@
+"""Vision stages: pure functions on arrays (calibration, rectification, grey, matching, depth)."""

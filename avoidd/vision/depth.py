@@ -1,0 +1,41 @@
+"""Depth from disparity: Z = f * B / (d + doffs), in metres."""
+
+from __future__ import annotations
+
+import numpy as np
+
+from avoidd.types import FloatArray, RectifiedRig
+
+
+def depth_from_disparity(disparity_px: FloatArray, rig: RectifiedRig) -> FloatArray:
+    """Convert a disparity map to depth along the optical axis.
+
+    Args:
+        disparity_px: Disparity of the left view in pixels, NaN where invalid.
+        rig: The rectified rig (focal length, baseline, principal point offset).
+
+    Returns:
+        Depth in metres, float32. NaN where the disparity is invalid; ``inf`` where
+        ``d + doffs <= 0`` (a point at or beyond infinity: measured, and far).
+    """
+    shifted = disparity_px.astype(np.float32) + np.float32(rig.doffs_px)
+    numerator = np.float32(rig.fx * rig.baseline_m)
+    with np.errstate(divide="ignore", invalid="ignore"):
+        depth = np.where(shifted > 0, numerator / shifted, np.float32(np.inf))
+    depth[np.isnan(shifted)] = np.nan
+    return depth.astype(np.float32, copy=False)
+
+
+def disparity_from_depth(depth_m: FloatArray, rig: RectifiedRig) -> FloatArray:
+    """Inverse of :func:`depth_from_disparity` (ground truth rendering, tests).
+
+    Args:
+        depth_m: Depth along the optical axis in metres; NaN invalid, ``inf`` at infinity.
+        rig: The rectified rig.
+
+    Returns:
+        Disparity in pixels, float32, NaN where the depth is NaN.
+    """
+    with np.errstate(divide="ignore"):
+        disparity = np.float32(rig.fx * rig.baseline_m) / depth_m.astype(np.float32)
+    return (disparity - np.float32(rig.doffs_px)).astype(np.float32)

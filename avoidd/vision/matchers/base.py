@@ -1,0 +1,28 @@
+"""The matcher interface shared by every disparity algorithm."""
+
+from __future__ import annotations
+
+from typing import Protocol
+
+from avoidd.types import FloatArray, Image
+
+
+class Matcher(Protocol):
+    """Computes the disparity of the left view of a rectified grey pair."""
+
+    @property
+    def num_disparities(self) -> int:
+        """Width of the disparity search range in pixels."""
+        ...
+
+    def compute(self, left: Image, right: Image) -> FloatArray:
+        """Match a rectified grey pair.
+
+        Args:
+            left: Left (reference) view, (H, W) uint8.
+            right: Right view, same shape.
+
+        Returns:
+            Disparity in pixels, float32 (H, W); NaN where no trustworthy match exists.
+        """
+        ...

@@ -1,0 +1,54 @@
+"""Semi-global matching through OpenCV's StereoSGBM."""
+
+from __future__ import annotations
+
+import cv2
+import numpy as np
+
+from avoidd.config import SgbmConfig
+from avoidd.types import FloatArray, Image
+
+_MODES = {
+    "sgbm": cv2.StereoSGBM_MODE_SGBM,
+    "hh": cv2.StereoSGBM_MODE_HH,
+    "sgbm_3way": cv2.StereoSGBM_MODE_SGBM_3WAY,
+    "hh4": cv2.StereoSGBM_MODE_HH4,
+}
+
+
+class SgbmMatcher:
+    """OpenCV StereoSGBM on grey images; invalid pixels become NaN.
+
+    Args:
+        config: Matcher parameters; ``p1``/``p2`` default to 8 and 32 times block_size squared.
+    """
+
+    def __init__(self, config: SgbmConfig) -> None:
+        area = config.block_size * config.block_size
+        self._min_disparity = config.min_disparity
+        self._num_disparities = config.num_disparities
+        self._sgbm = cv2.StereoSGBM.create(
+            minDisparity=config.min_disparity,
+            numDisparities=config.num_disparities,
+            blockSize=config.block_size,
+            P1=config.p1 if config.p1 is not None else 8 * area,
+            P2=config.p2 if config.p2 is not None else 32 * area,
+            disp12MaxDiff=config.disp12_max_diff,
+            preFilterCap=config.pre_filter_cap,
+            uniquenessRatio=config.uniqueness_ratio,
+            speckleWindowSize=config.speckle_window_size,
+            speckleRange=config.speckle_range,
+            mode=_MODES[config.mode],
+        )
+
+    @property
+    def num_disparities(self) -> int:
+        """Width of the disparity search range in pixels."""
+        return self._num_disparities
+
+    def compute(self, left: Image, right: Image) -> FloatArray:
+        """Match a rectified grey pair; see :class:`avoidd.vision.matchers.base.Matcher`."""
+        raw = np.asarray(self._sgbm.compute(left, right), dtype=np.int16)
+        disparity = raw.astype(np.float32) * np.float32(1.0 / 16.0)
+        disparity[raw < self._min_disparity * 16] = np.nan
+        return disparity

@@ -1,0 +1,220 @@
+"""YAML files validated into pydantic models, with errors that name the file, line and key path."""
+
+from __future__ import annotations
+
+import difflib
+import types
+import typing
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any, TypeVar
+
+import yaml
+from pydantic import BaseModel, ValidationError
+from pydantic_core import ErrorDetails
+
+from avoidd.errors import ConfigError
+
+M = TypeVar("M", bound=BaseModel)
+LocPart = str | int
+
+
+@dataclass(frozen=True)
+class YamlDocument:
+    """A parsed YAML file that remembers where every key came from.
+
+    Attributes:
+        path: The file the document was read from.
+        data: The plain Python data (dicts, lists, scalars).
+        root: The YAML node tree, for line numbers.
+    """
+
+    path: Path
+    data: Any
+    root: yaml.Node
+
+
+def load_yaml(path: Path) -> YamlDocument:
+    """Read a YAML file, rejecting syntax errors, several documents and duplicate keys.
+
+    Args:
+        path: The file to read.
+
+    Returns:
+        The document with its node tree.
+
+    Raises:
+        ConfigError: The file cannot be read or is not valid YAML.
+    """
+    try:
+        text = path.read_text(encoding="utf-8")
+    except OSError as exc:
+        reason = exc.strerror or str(exc)
+        raise ConfigError([f"{path}: cannot read the file ({reason}); check the path"]) from exc
+    loader = yaml.SafeLoader(text)
+    try:
+        root = loader.get_single_node()
+        if root is None:
+            raise ConfigError([f"{path}:1: the file is empty; it needs at least 'version: 1'"])
+        problems = _duplicate_keys(path, root)
+        if problems:
+            raise ConfigError(problems)
+        data = loader.construct_document(root)
+    except yaml.MarkedYAMLError as exc:
+        mark = exc.problem_mark or exc.context_mark
+        line = mark.line + 1 if mark is not None else 1
+        what = exc.problem or str(exc)
+        raise ConfigError(
+            [f"{path}:{line}: YAML syntax error: {what}; check indentation and quoting"]
+        ) from exc
+    except yaml.YAMLError as exc:
+        raise ConfigError([f"{path}: YAML error: {exc}"]) from exc
+    finally:
+        loader.dispose()
+    return YamlDocument(path, data, root)
+
+
+def validate_document(doc: YamlDocument, model: type[M], context: dict[str, Any]) -> M:
+    """Validate a document into a model; every problem becomes one line of a ConfigError.
+
+    Args:
+        doc: The loaded document.
+        model: The pydantic model of the whole file.
+        context: Validation context handed to the model's validators.
+
+    Returns:
+        The validated model.
+
+    Raises:
+        ConfigError: One line per validation error, ``FILE:LINE: key.path: message (got value)``.
+    """
+    try:
+        return model.model_validate(doc.data, context=context)
+    except ValidationError as exc:
+        names = _field_names(model)
+        raise ConfigError(
+            [_format_error(doc, err, names) for err in exc.errors(include_url=False)]
+        ) from exc
+
+
+def _duplicate_keys(path: Path, node: yaml.Node, where: list[LocPart] | None = None) -> list[str]:
+    where = where or []
+    problems: list[str] = []
+    if isinstance(node, yaml.MappingNode):
+        seen: set[str] = set()
+        for key_node, value_node in node.value:
+            key = str(key_node.value)
+            if key in seen:
+                line = key_node.start_mark.line + 1
+                dotted = _format_path([*where, key])
+                problems.append(f"{path}:{line}: {dotted}: duplicate key; keep only one of them")
+            seen.add(key)
+            problems.extend(_duplicate_keys(path, value_node, [*where, key]))
+    elif isinstance(node, yaml.SequenceNode):
+        for index, item in enumerate(node.value):
+            problems.extend(_duplicate_keys(path, item, [*where, index]))
+    return problems
+
+
+def _mapping_child(node: yaml.Node, key: str) -> tuple[yaml.Node, yaml.Node] | None:
+    if not isinstance(node, yaml.MappingNode):
+        return None
+    for key_node, value_node in node.value:
+        if str(key_node.value) == key:
+            return key_node, value_node
+    return None
+
+
+def _locate(root: yaml.Node, err: ErrorDetails) -> tuple[int, list[LocPart]]:
+    """Line (1-based) and real key path of a pydantic error location.
+
+    Parts that are not keys of the document are union tags that pydantic inserts (skipped), except
+    a missing key, which is named in the path and reported on its parent's line.
+    """
+    loc = list(err["loc"])
+    node = root
+    line = root.start_mark.line + 1
+    path: list[LocPart] = []
+    for position, part in enumerate(loc):
+        last = position == len(loc) - 1
+        if isinstance(part, int) and isinstance(node, yaml.SequenceNode):
+            if 0 <= part < len(node.value):
+                node = node.value[part]
+                line = node.start_mark.line + 1
+                path.append(part)
+            continue
+        child = _mapping_child(node, str(part))
+        if child is not None:
+            key_node, node = child
+            line = key_node.start_mark.line + 1
+            path.append(part)
+        elif last and err["type"] == "missing":
+            path.append(part)
+    if err["type"] in ("union_tag_invalid", "union_tag_not_found"):
+        tag = str(err.get("ctx", {}).get("discriminator", "")).strip("'")
+        child = _mapping_child(node, tag)
+        if child is not None:
+            line = child[0].start_mark.line + 1
+            path.append(tag)
+    return line, path
+
+
+def _format_path(path: list[LocPart]) -> str:
+    text = ""
+    for part in path:
+        if isinstance(part, int):
+            text += f"[{part}]"
+        else:
+            text += f".{part}" if text else part
+    return text or "(top level)"
+
+
+def _format_value(value: Any) -> str:
+    if isinstance(value, dict):
+        return "a mapping"
+    if isinstance(value, list):
+        return "a list"
+    text = repr(value)
+    return text if len(text) <= 60 else text[:57] + "..."
+
+
+def _format_error(doc: YamlDocument, err: ErrorDetails, names: set[str]) -> str:
+    line, path = _locate(doc.root, err)
+    message = err["msg"].removeprefix("Value error, ").removeprefix("Assertion failed, ")
+    kind = err["type"]
+    if kind == "missing":
+        return f"{doc.path}:{line}: {_format_path(path)}: required key is missing; add it"
+    if kind == "extra_forbidden":
+        key = str(path[-1]) if path else ""
+        close = difflib.get_close_matches(key, sorted(names), n=1, cutoff=0.6)
+        hint = f"did you mean '{close[0]}'?" if close else "remove it or check the spelling"
+        return f"{doc.path}:{line}: {_format_path(path)}: unknown key; {hint}"
+    if kind == "union_tag_invalid":
+        ctx = err.get("ctx", {})
+        expected = ctx.get("expected_tags", "")
+        tag = ctx.get("tag", "")
+        where = f"{doc.path}:{line}: {_format_path(path)}"
+        return f"{where}: unknown kind '{tag}'; use one of {expected}"
+    value = _format_value(err.get("input"))
+    return f"{doc.path}:{line}: {_format_path(path)}: {message} (got {value})"
+
+
+def _field_names(model: type[BaseModel]) -> set[str]:
+    """Every field name of a model and the models nested in it, for spelling suggestions."""
+    names: set[str] = set()
+    pending: list[Any] = [model]
+    seen: set[Any] = set()
+    while pending:
+        item = pending.pop()
+        if item in seen:
+            continue
+        seen.add(item)
+        if isinstance(item, type) and issubclass(item, BaseModel):
+            for name, info in item.model_fields.items():
+                names.add(name)
+                pending.append(info.annotation)
+        else:
+            origin = typing.get_origin(item)
+            if origin is not None or isinstance(item, types.UnionType):
+                pending.extend(typing.get_args(item))
+    return names

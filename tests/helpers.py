@@ -1,0 +1,159 @@
+"""Test helpers: config writers and a minimal MAVLink peer on real sockets."""
+
+from __future__ import annotations
+
+import asyncio
+import os
+import socket
+import time
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+import yaml
+
+os.environ["MAVLINK20"] = "1"
+from pymavlink.dialects.v20 import ardupilotmega as dialect
+
+REPO = Path(__file__).resolve().parent.parent
+
+RIG_320 = {
+    "width": 320,
+    "height": 240,
+    "fx": 200.0,
+    "fy": 200.0,
+    "cx": 159.5,
+    "cy": 119.5,
+    "baseline_m": 0.12,
+    "doffs": 0.0,
+}
+
+
+def write_yaml(path: Path, data: Any) -> Path:
+    path.write_text(yaml.safe_dump(data, sort_keys=False), encoding="utf-8")
+    return path
+
+
+def write_rectified_calibration(folder: Path, rig: dict[str, Any] | None = None) -> Path:
+    return write_yaml(folder / "calib.yaml", {"version": 1, "rectified": rig or RIG_320})
+
+
+def synthetic_config(
+    folder: Path,
+    connection: str,
+    *,
+    rig: dict[str, Any] | None = None,
+    source: dict[str, Any] | None = None,
+    heads: list[dict[str, Any]] | None = None,
+    pipeline: dict[str, Any] | None = None,
+    rate_hz: float = 15.0,
+) -> Path:
+    """A complete config with one synthetic head (or the given heads) and the given link."""
+    calibration = write_rectified_calibration(folder, rig)
+    head = {
+        "name": "front",
+        "calibration": str(calibration),
+        "source": source or {"kind": "synthetic", "fps": 15, "seed": 3},
+    }
+    config = {
+        "version": 1,
+        "heads": heads or [head],
+        "mavlink": {
+            "connection": connection,
+            "system_id": 7,
+            "obstacle_distance": {
+                "rate_hz": rate_hz,
+                "min_distance_cm": 20,
+                "max_distance_cm": 2000,
+            },
+        },
+        "pipeline": pipeline or {"max_age_ms": 400, "log_interval_s": 1.0},
+    }
+    return write_yaml(folder / "avoidd.yaml", config)
+
+
+@dataclass
+class Received:
+    t_s: float
+    message: Any
+
+
+@dataclass
+class MavlinkPeer:
+    """Decodes every MAVLink message that reaches it and remembers it with its arrival time."""
+
+    messages: list[Received] = field(default_factory=list)
+    parse_errors: int = 0
+
+    def __post_init__(self) -> None:
+        self._mav = dialect.MAVLink(None, srcSystem=1, srcComponent=1)
+        self._mav.robust_parsing = True
+        self.raw_first_bytes: list[int] = []
+
+    def feed(self, data: bytes) -> None:
+        if data:
+            self.raw_first_bytes.append(data[0])
+        for message in self._mav.parse_buffer(data) or []:
+            if message.get_type() == "BAD_DATA":
+                self.parse_errors += 1
+            else:
+                self.messages.append(Received(time.monotonic(), message))
+
+    def of_type(self, kind: str) -> list[Any]:
+        return [r.message for r in self.messages if r.message.get_type() == kind]
+
+    def times_of(self, kind: str) -> list[float]:
+        return [r.t_s for r in self.messages if r.message.get_type() == kind]
+
+    def heartbeat_bytes(self) -> bytes:
+        msg = self._mav.heartbeat_encode(
+            dialect.MAV_TYPE_QUADROTOR, dialect.MAV_AUTOPILOT_ARDUPILOTMEGA, 0, 0, 4
+        )
+        return bytes(msg.pack(self._mav))
+
+
+class UdpPeer(MavlinkPeer, asyncio.DatagramProtocol):
+    """A MAVLink peer on a real loopback UDP socket."""
+
+    def __init__(self) -> None:
+        MavlinkPeer.__init__(self)
+        self.transport: asyncio.DatagramTransport | None = None
+        self.last_addr: Any = None
+
+    def connection_made(self, transport: asyncio.BaseTransport) -> None:
+        # Python 3.11's selector transport does not subclass DatagramTransport.
+        self.transport = transport  # type: ignore[assignment]
+
+    def datagram_received(self, data: bytes, addr: Any) -> None:
+        self.last_addr = addr
+        self.feed(data)
+
+    @property
+    def port(self) -> int:
+        assert self.transport is not None
+        return int(self.transport.get_extra_info("sockname")[1])
+
+    def close(self) -> None:
+        if self.transport is not None:
+            self.transport.close()
+
+
+async def open_udp_peer(host: str = "127.0.0.1", port: int = 0) -> UdpPeer:
+    loop = asyncio.get_running_loop()
+    _, peer = await loop.create_datagram_endpoint(UdpPeer, local_addr=(host, port))
+    return peer
+
+
+def free_udp_port() -> int:
+    with socket.socket(socket.AF_INET, socket.SOCK_DGRAM) as probe:
+        probe.bind(("127.0.0.1", 0))
+        return int(probe.getsockname()[1])
+
+
+async def wait_for(predicate: Any, timeout_s: float, step_s: float = 0.02) -> bool:
+    deadline = time.monotonic() + timeout_s
+    while time.monotonic() < deadline:
+        if predicate():
+            return True
+        await asyncio.sleep(step_s)
+    return bool(predicate())

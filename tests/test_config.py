@@ -1,0 +1,249 @@
+from __future__ import annotations
+
+import subprocess
+import sys
+from pathlib import Path
+
+import pytest
+
+from avoidd.cli import load_all, main
+from avoidd.config import load_config
+from avoidd.errors import ConfigError
+from avoidd.mavlink.url import LinkSpec, parse_connection
+from tests.helpers import REPO
+
+BASE = """\
+version: 1
+heads:
+  - name: front
+    calibration: calib.yaml
+    source:
+      kind: synthetic
+      fps: 15
+    matcher:
+      num_disparities: 64
+mavlink:
+  connection: udpout:127.0.0.1:14550
+"""
+
+CALIBRATION = """\
+version: 1
+rectified: {width: 320, height: 240, fx: 200, fy: 200, cx: 159.5, cy: 119.5, baseline_m: 0.1}
+"""
+
+
+def write(tmp_path: Path, text: str, name: str = "avoidd.yaml") -> Path:
+    (tmp_path / "calib.yaml").write_text(CALIBRATION)
+    path = tmp_path / name
+    path.write_text(text)
+    return path
+
+
+def problems(path: Path) -> list[str]:
+    with pytest.raises(ConfigError) as info:
+        load_all(path)
+    return info.value.lines
+
+
+def test_valid_config_loads_with_defaults(tmp_path: Path) -> None:
+    config = load_config(write(tmp_path, BASE))
+    head = config.heads[0]
+    assert head.calibration == tmp_path / "calib.yaml"
+    assert head.matcher.num_disparities == 64
+    assert head.mount.yaw_deg == 0.0
+    assert config.mavlink.component_id == 196
+    assert config.mavlink.obstacle_distance.rate_hz == 15.0
+    assert config.mavlink.link == LinkSpec(kind="udpout", host="127.0.0.1", port=14550)
+    with pytest.raises(ValueError):
+        config.heads[0].name = "other"  # type: ignore[misc]
+
+
+@pytest.mark.parametrize("name", sorted(p.name for p in (REPO / "config").glob("*.yaml")))
+def test_shipped_configs_validate(name: str) -> None:
+    config, calibrations = load_all(REPO / "config" / name)
+    assert set(calibrations) == {h.name for h in config.heads}
+
+
+@pytest.mark.parametrize(
+    ("old", "new", "expected"),
+    [
+        (
+            "num_disparities: 64",
+            "num_disparity: 64",
+            "avoidd.yaml:9: heads[0].matcher.num_disparity: unknown key; "
+            "did you mean 'num_disparities'?",
+        ),
+        (
+            "num_disparities: 64",
+            "num_disparities: 60",
+            "avoidd.yaml:9: heads[0].matcher.num_disparities: must be a multiple of 16; "
+            "use 64 (got 60)",
+        ),
+        (
+            "kind: synthetic",
+            "kind: webcam",
+            "avoidd.yaml:6: heads[0].source.kind: unknown kind 'webcam'; "
+            "use one of 'synthetic', 'files', 'v4l2'",
+        ),
+        (
+            "fps: 15",
+            "fps: fast",
+            "avoidd.yaml:7: heads[0].source.fps: Input should be a valid number, "
+            "unable to parse string as a number (got 'fast')",
+        ),
+        (
+            "fps: 15",
+            "fps: 0",
+            "avoidd.yaml:7: heads[0].source.fps: Input should be greater than 0 (got 0)",
+        ),
+        (
+            "udpout:127.0.0.1:14550",
+            "udp:127.0.0.1:14550",
+            "avoidd.yaml:11: mavlink.connection: unknown connection 'udp:127.0.0.1:14550'; use "
+            "udpout:HOST:PORT, udpin:HOST:PORT, tcp:HOST:PORT or /dev/ttyX,BAUD "
+            "(got 'udp:127.0.0.1:14550')",
+        ),
+        ("version: 1", "version: 2", "avoidd.yaml:1: version: Input should be 1 (got 2)"),
+        (
+            "fps: 15",
+            "fps: 15\n      fps: 4",
+            "avoidd.yaml:8: heads[0].source.fps: duplicate key; keep only one of them",
+        ),
+        (
+            "fps: 15",
+            "fps: [15",
+            "avoidd.yaml:8: YAML syntax error: expected ',' or ']', but got ':'; "
+            "check indentation and quoting",
+        ),
+        (
+            "name: front",
+            "name: Front Camera",
+            "avoidd.yaml:3: heads[0].name: use lower case letters, digits, '-' or '_', "
+            "e.g. 'front' (got 'Front Camera')",
+        ),
+    ],
+)
+def test_broken_config_names_line_path_value_and_fix(
+    tmp_path: Path, old: str, new: str, expected: str
+) -> None:
+    lines = problems(write(tmp_path, BASE.replace(old, new)))
+    assert lines == [f"{tmp_path}/{expected}"]
+
+
+def test_missing_section_is_reported_on_its_parent(tmp_path: Path) -> None:
+    text = BASE.split("mavlink:")[0]
+    assert problems(write(tmp_path, text)) == [
+        f"{tmp_path}/avoidd.yaml:1: mavlink: required key is missing; add it"
+    ]
+
+
+def test_every_problem_is_listed(tmp_path: Path) -> None:
+    text = BASE.replace("fps: 15", "fps: -1").replace("127.0.0.1:14550", "127.0.0.1:99999")
+    lines = problems(write(tmp_path, text))
+    assert [line.split(": ")[0:2] for line in lines] == [
+        [f"{tmp_path}/avoidd.yaml:7", "heads[0].source.fps"],
+        [f"{tmp_path}/avoidd.yaml:11", "mavlink.connection"],
+    ]
+
+
+def test_missing_calibration_file_names_the_resolved_path(tmp_path: Path) -> None:
+    lines = problems(write(tmp_path, BASE.replace("calib.yaml", "nope.yaml")))
+    assert lines == [
+        f"{tmp_path}/avoidd.yaml:4: heads[0].calibration: file not found: {tmp_path}/nope.yaml; "
+        "check the path (relative to the config file) (got 'nope.yaml')"
+    ]
+
+
+def test_calibration_errors_name_the_calibration_file(tmp_path: Path) -> None:
+    path = write(tmp_path, BASE)
+    (tmp_path / "calib.yaml").write_text(
+        "version: 1\nstereo:\n  width: 640\n  height: 480\n"
+        "  K1: [[400, 0, 320], [0, 400, 240], [0, 0, 1]]\n  D1: [0, 0, 0, 0]\n"
+        "  K2: [[400, 0, 320], [0, 400, 240], [0, 0, 1]]\n  D2: [0, 0, 0, 0]\n"
+        "  R: [[1, 0, 0], [0, 2, 0], [0, 0, 1]]\n  T_m: [-0.1, 0, 0]\n"
+    )
+    assert problems(path) == [
+        f"{tmp_path}/calib.yaml:9: stereo.R: R is not a rotation matrix (orthonormal, "
+        "determinant +1) (got a list)"
+    ]
+
+
+def test_synthetic_head_needs_rectified_calibration(tmp_path: Path) -> None:
+    path = write(tmp_path, BASE)
+    (tmp_path / "calib.yaml").write_text(
+        CALIBRATION.replace("baseline_m: 0.1", "baseline_m: 0.1, doffs: 3")
+    )
+    (line,) = problems(path)
+    assert "renders a synthetic scene, which needs a 'rectified' calibration with doffs 0" in line
+
+
+def test_v4l2_size_must_match_calibration(tmp_path: Path) -> None:
+    text = BASE.replace(
+        "kind: synthetic\n      fps: 15",
+        "kind: v4l2\n      devices: [/dev/video0, /dev/video1]\n"
+        "      width: 640\n      height: 480",
+    )
+    (line,) = problems(write(tmp_path, text))
+    assert "asks 640x480 but" in line and "is for 320x240; make them agree" in line
+
+
+def test_check_config_cli_exit_codes(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    good = write(tmp_path, BASE)
+    assert main(["check-config", str(good)]) == 0
+    assert "OK" in capsys.readouterr().out
+    bad = write(tmp_path, BASE.replace("fps: 15", "fps: nope"), "bad.yaml")
+    assert main(["check-config", str(bad)]) == 2
+    err = capsys.readouterr().err
+    assert f"{bad}:7: heads[0].source.fps" in err
+    assert "nothing was started" in err
+
+
+def test_run_with_bad_config_exits_before_touching_hardware(tmp_path: Path) -> None:
+    # The camera device does not exist: a run that got as far as opening it would log that.
+    text = BASE.replace(
+        "kind: synthetic\n      fps: 15",
+        "kind: v4l2\n      devices: [/dev/video-absent]\n      width: 320\n      height: 240",
+    ).replace("num_disparities: 64", "num_disparities: 65")
+    path = write(tmp_path, text)
+    result = subprocess.run(
+        [sys.executable, "-m", "avoidd", "run", "--config", str(path)],
+        capture_output=True,
+        text=True,
+        timeout=60,
+    )
+    assert result.returncode == 2
+    assert "heads[0].matcher.num_disparities: must be a multiple of 16; use 80" in result.stderr
+    assert "video-absent" not in result.stderr
+
+
+@pytest.mark.parametrize(
+    ("text", "spec"),
+    [
+        ("udpout:127.0.0.1:14550", LinkSpec("udpout", "127.0.0.1", 14550)),
+        ("udpin:0.0.0.0:14555", LinkSpec("udpin", "0.0.0.0", 14555)),
+        ("tcp:localhost:5760", LinkSpec("tcp", "localhost", 5760)),
+        ("udpout:[::1]:14550", LinkSpec("udpout", "::1", 14550)),
+        ("/dev/ttyAMA0,921600", LinkSpec("serial", device="/dev/ttyAMA0", baud=921600)),
+        ("/dev/ttyACM0", LinkSpec("serial", device="/dev/ttyACM0", baud=115200)),
+    ],
+)
+def test_connection_strings(text: str, spec: LinkSpec) -> None:
+    assert parse_connection(text) == spec
+    assert parse_connection(str(spec)) == spec
+
+
+@pytest.mark.parametrize(
+    ("text", "fragment"),
+    [
+        ("udp:1.2.3.4:5", "unknown connection"),
+        ("udpout:127.0.0.1", "missing host or port"),
+        ("udpout:127.0.0.1:0", "port must be a number from 1 to 65535"),
+        ("tcp:0.0.0.0:5760", "needs a destination address"),
+        ("udpout:[::1:14550", "IPv6 host needs brackets"),
+        ("/dev/ttyS0,12345", "unsupported baud rate 12345"),
+        ("/dev/ttyS0,fast", "is not a number"),
+    ],
+)
+def test_bad_connection_strings(text: str, fragment: str) -> None:
+    with pytest.raises(ValueError, match=fragment):
+        parse_connection(text)

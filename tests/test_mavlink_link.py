@@ -1,0 +1,215 @@
+"""The daemon against a MAVLink peer on real sockets (UDP both ways, TCP, a pty serial line)."""
+
+from __future__ import annotations
+
+import asyncio
+import contextlib
+import os
+import pty
+import time
+from pathlib import Path
+
+import pytest
+
+from avoidd.cli import load_all
+from avoidd.daemon import Daemon
+from tests.helpers import MavlinkPeer, free_udp_port, open_udp_peer, synthetic_config, wait_for
+
+
+async def start_daemon(config_path: Path) -> tuple[Daemon, asyncio.Task[int]]:
+    config, calibrations = load_all(config_path)
+    daemon = Daemon(config, calibrations)
+    return daemon, asyncio.create_task(daemon.run())
+
+
+async def stop_daemon(daemon: Daemon, task: asyncio.Task[int]) -> None:
+    daemon.stop()
+    assert await asyncio.wait_for(task, timeout=10.0) == 0
+
+
+async def test_udpout_messages_decode_field_by_field(tmp_path: Path) -> None:
+    peer = await open_udp_peer()
+    daemon, task = await start_daemon(synthetic_config(tmp_path, f"udpout:127.0.0.1:{peer.port}"))
+    try:
+        ok = await wait_for(
+            lambda: (
+                any(min(m.distances) < 2000 for m in peer.of_type("OBSTACLE_DISTANCE"))
+                and len(peer.of_type("HEARTBEAT")) >= 2
+            ),
+            timeout_s=20.0,
+        )
+        assert ok, f"received {[r.message.get_type() for r in peer.messages][:20]}"
+    finally:
+        await stop_daemon(daemon, task)
+        peer.close()
+
+    assert peer.parse_errors == 0
+    assert set(peer.raw_first_bytes) == {0xFD}  # every packet is MAVLink 2
+    od = [m for m in peer.of_type("OBSTACLE_DISTANCE") if min(m.distances) < 2000][-1]
+    assert od.get_srcSystem() == 7 and od.get_srcComponent() == 196
+    assert od.sensor_type == 4  # MAV_DISTANCE_SENSOR_UNKNOWN
+    assert len(od.distances) == 72
+    assert od.increment == 0
+    assert od.increment_f == 5.0
+    assert od.angle_offset == 0.0
+    assert od.frame == 12  # MAV_FRAME_BODY_FRD
+    assert (od.min_distance, od.max_distance) == (20, 2000)
+    assert 0 not in od.distances
+    assert all(v == 65535 or 20 <= v <= 2001 for v in od.distances)
+    assert od.distances[36] == 65535  # behind the camera: nobody sees it
+    assert abs(od.time_usec - time.monotonic_ns() // 1000) < 30_000_000
+
+    heartbeat = peer.of_type("HEARTBEAT")[-1]
+    assert heartbeat.get_srcSystem() == 7 and heartbeat.get_srcComponent() == 196
+    assert heartbeat.type == 18  # MAV_TYPE_ONBOARD_CONTROLLER
+    assert heartbeat.autopilot == 8  # MAV_AUTOPILOT_INVALID
+    assert heartbeat.system_status == 4  # MAV_STATE_ACTIVE
+    assert heartbeat.mavlink_version == 3
+    texts = [m.text for m in peer.of_type("STATUSTEXT")]
+    assert "avoidd started" in texts
+
+
+async def test_udpin_answers_the_peer_that_spoke(tmp_path: Path) -> None:
+    port = free_udp_port()
+    daemon, task = await start_daemon(synthetic_config(tmp_path, f"udpin:127.0.0.1:{port}"))
+    peer = await open_udp_peer()
+    try:
+        await asyncio.sleep(0.3)
+        assert peer.messages == []  # nothing can be sent before a peer is known
+        assert peer.transport is not None
+        peer.transport.sendto(peer.heartbeat_bytes(), ("127.0.0.1", port))
+        assert await wait_for(lambda: len(peer.of_type("OBSTACLE_DISTANCE")) >= 3, 10.0)
+        assert await wait_for(lambda: daemon.received["HEARTBEAT"] >= 1, 2.0)
+    finally:
+        await stop_daemon(daemon, task)
+        peer.close()
+
+
+class TcpPeer(MavlinkPeer):
+    def __init__(self) -> None:
+        super().__init__()
+        self.connections = 0
+        self.writers: list[asyncio.StreamWriter] = []
+
+    async def handle(self, reader: asyncio.StreamReader, writer: asyncio.StreamWriter) -> None:
+        self.connections += 1
+        self.writers.append(writer)
+        try:
+            while data := await reader.read(4096):
+                self.feed(data)
+        except (ConnectionError, asyncio.CancelledError):
+            pass
+        finally:
+            writer.close()
+
+
+async def test_tcp_client_sends_and_reconnects(tmp_path: Path) -> None:
+    peer = TcpPeer()
+    server = await asyncio.start_server(peer.handle, "127.0.0.1", 0)
+    port = server.sockets[0].getsockname()[1]
+    daemon, task = await start_daemon(synthetic_config(tmp_path, f"tcp:127.0.0.1:{port}"))
+    try:
+        assert await wait_for(lambda: len(peer.of_type("OBSTACLE_DISTANCE")) >= 3, 10.0)
+        # The autopilot side goes away and comes back on the same port.
+        server.close()
+        for writer in peer.writers:
+            writer.close()
+        await server.wait_closed()
+        await asyncio.sleep(0.5)
+        before = len(peer.of_type("OBSTACLE_DISTANCE"))
+        server = await asyncio.start_server(peer.handle, "127.0.0.1", port)
+        assert await wait_for(lambda: peer.connections >= 2, 5.0)
+        assert await wait_for(lambda: len(peer.of_type("OBSTACLE_DISTANCE")) > before + 3, 5.0)
+    finally:
+        await stop_daemon(daemon, task)
+        server.close()
+
+
+async def test_serial_link_over_a_pty(tmp_path: Path) -> None:
+    master, slave = pty.openpty()
+    device = os.ttyname(slave)
+    peer = MavlinkPeer()
+    loop = asyncio.get_running_loop()
+    os.set_blocking(master, False)
+
+    def readable() -> None:
+        with contextlib.suppress(BlockingIOError):
+            peer.feed(os.read(master, 65536))
+
+    loop.add_reader(master, readable)
+    daemon, task = await start_daemon(synthetic_config(tmp_path, f"{device},57600"))
+    try:
+        assert await wait_for(lambda: len(peer.of_type("OBSTACLE_DISTANCE")) >= 5, 15.0)
+        assert len(peer.of_type("HEARTBEAT")) >= 1
+        assert peer.parse_errors == 0
+    finally:
+        await stop_daemon(daemon, task)
+        loop.remove_reader(master)
+        os.close(master)
+        os.close(slave)
+
+
+async def test_stale_pipeline_sends_unknown_critical_and_says_so(tmp_path: Path) -> None:
+    # A recording of a few frames that ends: after it, avoidd has nothing it can vouch for.
+    folder = tmp_path / "rec"
+    (folder / "left").mkdir(parents=True)
+    (folder / "right").mkdir()
+    import cv2
+    import numpy as np
+
+    rng = np.random.default_rng(0)
+    for i in range(4):
+        image = rng.integers(0, 255, (240, 320), dtype=np.uint8)
+        cv2.imwrite(str(folder / "left" / f"{i}.png"), image)
+        cv2.imwrite(str(folder / "right" / f"{i}.png"), np.roll(image, -8, axis=1))
+    peer = await open_udp_peer()
+    config = synthetic_config(
+        tmp_path,
+        f"udpout:127.0.0.1:{peer.port}",
+        source={"kind": "files", "path": str(folder), "fps": 10},
+        pipeline={"max_age_ms": 200, "log_interval_s": 1.0},
+    )
+    daemon, task = await start_daemon(config)
+    try:
+        assert await wait_for(
+            lambda: any(min(m.distances) < 2001 for m in peer.of_type("OBSTACLE_DISTANCE")), 10.0
+        ), "never received fresh data"
+        assert await wait_for(
+            lambda: any("stale" in m.text for m in peer.of_type("STATUSTEXT")), 10.0
+        )
+        t_stale = time.monotonic()
+        assert await wait_for(
+            lambda: any(
+                r.t_s > t_stale + 1.2 for r in peer.messages if r.message.get_type() == "HEARTBEAT"
+            ),
+            5.0,
+        )
+    finally:
+        await stop_daemon(daemon, task)
+        peer.close()
+    texts = [m.text for m in peer.of_type("STATUSTEXT")]
+    assert "avoidd: front source ended" in texts
+    assert "avoidd: front stale, no avoidance" in texts
+    stale_severity = [m.severity for m in peer.of_type("STATUSTEXT") if "stale" in m.text]
+    assert stale_severity == [2]  # MAV_SEVERITY_CRITICAL, once
+    late = [r.message for r in peer.messages if r.t_s > t_stale + 0.2]
+    late_od = [m for m in late if m.get_type() == "OBSTACLE_DISTANCE"]
+    assert late_od and all(set(m.distances) == {65535} for m in late_od)
+    late_hb = [m for m in late if m.get_type() == "HEARTBEAT"]
+    assert late_hb and all(m.system_status == 5 for m in late_hb)  # MAV_STATE_CRITICAL
+    # The rate does not drop when the data goes stale: the autopilot keeps hearing "unknown".
+    times = [
+        r.t_s
+        for r in peer.messages
+        if r.message.get_type() == "OBSTACLE_DISTANCE" and r.t_s > t_stale
+    ]
+    assert len(times) / (times[-1] - times[0]) > 12.0
+
+
+@pytest.mark.parametrize("kind", ["udpout", "udpin"])
+async def test_nobody_listening_does_not_stop_the_daemon(tmp_path: Path, kind: str) -> None:
+    connection = f"{kind}:127.0.0.1:{free_udp_port()}"
+    daemon, task = await start_daemon(synthetic_config(tmp_path, connection))
+    await asyncio.sleep(1.0)
+    assert not task.done()
+    await stop_daemon(daemon, task)

@@ -1,0 +1,202 @@
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import pytest
+from hypothesis import given, settings
+from hypothesis import strategies as st
+
+from avoidd.config import SectorsConfig
+from avoidd.mavlink.messages import UNKNOWN_CM, sectors_to_cm
+from avoidd.perception.sectors import (
+    bin_of_bearing,
+    column_bearings_deg,
+    covered_bins,
+    merge_scans,
+    nearest_cluster_m,
+    sector_scan,
+)
+from avoidd.types import Mount, RectifiedRig, SectorScan, bin_bearing_deg, wrap_deg
+
+RIG = RectifiedRig(640, 480, 400.0, 400.0, 319.5, 239.5, 0.12, 0.0)
+PARAMS = SectorsConfig()
+MAX_RANGE_M = 20.0
+
+
+def column_at(bearing_deg: float, rig: RectifiedRig = RIG) -> int:
+    return round(rig.cx + rig.fx * math.tan(math.radians(bearing_deg)))
+
+
+def far_scene(rig: RectifiedRig = RIG) -> np.ndarray:
+    """Everything measured and far beyond the maximum range."""
+    return np.full((rig.height, rig.width), 60.0, dtype=np.float32)
+
+
+def put_obstacle(depth: np.ndarray, bearing_deg: float, range_m: float, width_px: int) -> None:
+    column = column_at(bearing_deg)
+    z = range_m * math.cos(math.radians(bearing_deg))
+    depth[:, column - width_px // 2 : column + (width_px + 1) // 2] = z
+
+
+def scan_of(depth: np.ndarray, mount: Mount | None = None) -> np.ndarray:
+    scan = sector_scan(depth, RIG, mount or Mount(), PARAMS, MAX_RANGE_M, 123)
+    assert scan.t_capture_ns == 123
+    return scan.distance_m
+
+
+def test_bin_geometry() -> None:
+    assert int(bin_of_bearing(0.0)) == 0
+    assert int(bin_of_bearing(20.0)) == 4
+    assert int(bin_of_bearing(2.4)) == 0 and int(bin_of_bearing(2.6)) == 1
+    assert int(bin_of_bearing(-20.0)) == 68
+    assert int(bin_of_bearing(357.6)) == 0
+    assert (
+        bin_bearing_deg(4) == 20.0 and bin_bearing_deg(68) == -20.0 and bin_bearing_deg(36) == 180
+    )
+    assert wrap_deg(270.0) == -90.0 and wrap_deg(-180.0) == 180.0
+
+
+def test_obstacle_at_plus_20_degrees_lands_in_bin_4() -> None:
+    depth = far_scene()
+    put_obstacle(depth, 20.0, 6.0, 30)
+    distance = scan_of(depth)
+    assert distance[4] == pytest.approx(6.0, rel=0.01)
+    finite = np.flatnonzero(np.isfinite(distance))
+    assert set(finite) <= {3, 4, 5}
+    nearest = SectorScan(0, distance).nearest()
+    assert nearest is not None and nearest.bearing_deg == 20.0
+
+
+def test_clear_bins_and_field_of_view() -> None:
+    distance = scan_of(far_scene())
+    covered = covered_bins(RIG, Mount())
+    half_fov = RIG.hfov_deg / 2
+    for index in range(72):
+        bearing = bin_bearing_deg(index)
+        assert covered[index] == (abs(bearing) <= half_fov)
+        if covered[index]:
+            assert distance[index] == np.inf
+        else:
+            assert np.isnan(distance[index])
+    cm = sectors_to_cm(SectorScan(0, distance), 20, 2000)
+    assert cm[0] == 2001 and cm[36] == UNKNOWN_CM and cm[18] == UNKNOWN_CM
+
+
+def test_mount_yaw_90_fills_bins_around_18() -> None:
+    depth = far_scene()
+    put_obstacle(depth, 0.0, 4.0, 40)
+    distance = scan_of(depth, Mount(yaw_deg=90.0))
+    assert distance[18] == pytest.approx(4.0, rel=0.01)
+    covered = np.flatnonzero(~np.isnan(distance))
+    assert set(covered) == set(range(11, 26))
+    assert np.isnan(distance[0]) and np.isnan(distance[36])
+
+
+def test_mount_position_shifts_the_range() -> None:
+    depth = far_scene()
+    put_obstacle(depth, 0.0, 4.0, 40)
+    distance = scan_of(depth, Mount(position_m=(0.3, 0.0, 0.0)))
+    assert distance[0] == pytest.approx(4.3, rel=0.01)
+
+
+def test_unmeasured_bins_are_unknown_not_clear() -> None:
+    depth = far_scene()
+    left, right = column_at(-12.5), column_at(-7.5)
+    depth[:, left:right] = np.nan  # bin 70 (-10 deg) has no valid pixel
+    distance = scan_of(depth)
+    assert np.isnan(distance[70])
+    assert distance[69] == np.inf and distance[71] == np.inf
+
+
+def test_a_few_speckles_cannot_make_an_obstacle() -> None:
+    depth = far_scene()
+    rng = np.random.default_rng(1)
+    band_rows = np.arange(150, 230)
+    rows = rng.choice(band_rows, PARAMS.min_pixels - 1, replace=False)
+    depth[rows, column_at(10.0)] = 1.5
+    assert scan_of(depth)[2] == np.inf
+
+
+def test_thin_pole_in_front_of_a_wall_is_kept() -> None:
+    depth = np.full((RIG.height, RIG.width), 9.0, dtype=np.float32)  # a wall 9 m ahead
+    put_obstacle(depth, 0.0, 5.0, 4)  # a 5 cm pole at 5 m is 4 px wide
+    distance = scan_of(depth)
+    assert distance[0] == pytest.approx(5.0, rel=0.01)
+    assert distance[2] == pytest.approx(9.0 / math.cos(math.radians(10.0)), rel=0.02)
+
+
+def test_nearest_cluster_reports_the_near_end_of_an_oblique_surface() -> None:
+    # One bin seeing a wall whose range grows from 4 m to 8 m across the bin.
+    ranges = np.linspace(4.0, 8.0, 400)
+    focal_baseline = 48.0
+    distance = nearest_cluster_m(
+        np.zeros(400, dtype=np.int64), (focal_baseline / ranges).astype(np.float32), 48.0, 20, 0.8
+    )
+    assert 4.0 <= distance[0] < 4.0 * 1.03
+    assert np.isnan(distance[1:]).all()
+
+
+@settings(max_examples=200, deadline=None)
+@given(
+    st.lists(
+        st.tuples(st.integers(0, 71), st.floats(0.5, 60.0)),
+        min_size=0,
+        max_size=300,
+    ),
+    st.integers(1, 30),
+    st.floats(0.1, 3.0),
+)
+def test_nearest_cluster_properties(
+    points: list[tuple[int, float]], min_pixels: int, window_px: float
+) -> None:
+    bins = np.array([b for b, _ in points], dtype=np.int64)
+    disparity = np.array([d for _, d in points], dtype=np.float32)
+    distance = nearest_cluster_m(bins, disparity, 48.0, min_pixels, window_px)
+    counts = np.bincount(bins, minlength=72) if points else np.zeros(72, dtype=np.int64)
+    for index in range(72):
+        values = disparity[bins == index]
+        if counts[index] < min_pixels:
+            assert np.isnan(distance[index])
+            continue
+        ordered = np.sort(values)[::-1]
+        dense = ordered[: ordered.size - min_pixels + 1] - ordered[min_pixels - 1 :] <= window_px
+        if not dense.any():
+            assert np.isnan(distance[index])
+            continue
+        seed = ordered[int(np.argmax(dense))]
+        reported = 48.0 / distance[index]
+        # The reported disparity lies in the seed's window and is one of the measured values.
+        assert seed - window_px - 1e-4 <= reported <= seed + 1e-4
+        assert np.isclose(values, reported, rtol=1e-5).any()
+
+
+def test_merge_takes_nearest_and_keeps_unknown_where_nobody_sees() -> None:
+    a = np.full(72, np.nan, dtype=np.float32)
+    b = np.full(72, np.nan, dtype=np.float32)
+    a[0], b[0] = 5.0, 3.0
+    a[1], b[1] = np.inf, 4.0
+    a[2] = np.inf
+    merged = merge_scans([SectorScan(10, a), SectorScan(20, b)])
+    assert merged.t_capture_ns == 10
+    assert merged.distance_m[0] == 3.0 and merged.distance_m[1] == 4.0
+    assert merged.distance_m[2] == np.inf and np.isnan(merged.distance_m[3])
+    assert np.isnan(merge_scans([]).distance_m).all()
+
+
+def test_encoding_never_sends_zero_and_clamps() -> None:
+    distance = np.full(72, np.nan, dtype=np.float32)
+    distance[0] = 0.01  # closer than min: clamped up to min, never 0
+    distance[1] = 25.0  # beyond max (cannot come from a scan, but must still clamp)
+    distance[2] = np.inf
+    distance[3] = 7.234
+    cm = sectors_to_cm(SectorScan(0, distance), 20, 2000)
+    assert cm[:4] == [20, 2000, 2001, 723]
+    assert cm[4:] == [UNKNOWN_CM] * 68
+    assert 0 not in cm
+
+
+def test_column_bearings_follow_the_mount() -> None:
+    bearings = column_bearings_deg(RIG, Mount(yaw_deg=-90.0))
+    assert bearings[0] == pytest.approx(-90.0 - RIG.hfov_deg / 2, abs=0.1)
+    assert bearings[-1] == pytest.approx(-90.0 + RIG.hfov_deg / 2, abs=0.1)
