@@ -75,8 +75,9 @@ class SyntheticObstacleConfig(_Strict):
 
 def _default_obstacles() -> list[SyntheticObstacleConfig]:
     return [
+        # Its nearest point, the front-left corner (5.0 m, 1.82 m), is at 20.0 deg: bin 4.
         SyntheticObstacleConfig(
-            shape="box", forward_m=6.0, right_m=2.2, width_m=1.2, depth_m=1.0, height_m=3.0
+            shape="box", forward_m=5.5, right_m=2.42, width_m=1.2, depth_m=1.0, height_m=3.0
         ),
         SyntheticObstacleConfig(shape="pole", forward_m=9.0, right_m=-3.5, width_m=0.3, height_m=5),
         SyntheticObstacleConfig(
