@@ -2,7 +2,7 @@
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Literal
 
@@ -119,11 +119,17 @@ class Calibration:
         rig: Intrinsics of the rectified pair.
         maps: Remap tables from raw to rectified images, or None if frames arrive rectified.
         source: The file it was read from.
+        rectified_from_raw: Rotation from the raw left camera frame to the rectified one
+            (identity when frames arrive rectified); points found in rectified images are
+            turned back into the physical camera's frame with its transpose.
     """
 
     rig: RectifiedRig
     maps: RectifyMaps | None
     source: Path
+    rectified_from_raw: npt.NDArray[np.float64] = field(
+        default_factory=lambda: np.eye(3, dtype=np.float64)
+    )
 
 
 def load_calibration(path: Path) -> Calibration:
@@ -146,20 +152,23 @@ def load_calibration(path: Path) -> Calibration:
         return Calibration(rig, None, path)
     assert model.stereo is not None
     try:
-        rig, maps = rectify_stereo(model.stereo)
+        rig, maps, rotation = rectify_stereo(model.stereo)
     except ValueError as exc:
         raise ConfigError([f"{path}: {exc}"]) from exc
-    return Calibration(rig, maps, path)
+    return Calibration(rig, maps, path, rotation)
 
 
-def rectify_stereo(stereo: StereoModel) -> tuple[RectifiedRig, RectifyMaps]:
+def rectify_stereo(
+    stereo: StereoModel,
+) -> tuple[RectifiedRig, RectifyMaps, npt.NDArray[np.float64]]:
     """Compute the rectified rig and remap tables of a full stereo calibration.
 
     Args:
         stereo: The calibration (OpenCV conventions).
 
     Returns:
-        The rectified intrinsics (principal points aligned, so ``doffs_px`` is 0) and the maps.
+        The rectified intrinsics (principal points aligned, so ``doffs_px`` is 0), the maps and
+        the rotation from the raw left camera frame to the rectified left frame.
 
     Raises:
         ValueError: The rig is vertical or its cameras are swapped.
@@ -195,4 +204,4 @@ def rectify_stereo(stereo: StereoModel) -> tuple[RectifiedRig, RectifyMaps]:
         left=(np.asarray(left[0], np.int16), np.asarray(left[1], np.uint16)),
         right=(np.asarray(right[0], np.int16), np.asarray(right[1], np.uint16)),
     )
-    return rig, maps
+    return rig, maps, np.asarray(r1, dtype=np.float64)

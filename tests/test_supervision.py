@@ -1,0 +1,83 @@
+"""The daemon keeps going through a camera that fails to open, breaks frames and gets lost."""
+
+from __future__ import annotations
+
+import asyncio
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import pytest
+
+import avoidd.daemon
+from avoidd.cli import load_all
+from avoidd.daemon import Daemon
+from avoidd.errors import SourceError
+from avoidd.sources import open_source as real_open_source
+from avoidd.types import StereoFrame
+from tests.helpers import open_udp_peer, synthetic_config, wait_for
+
+
+class FlakyCamera:
+    """Wraps a real source: one frame of the wrong size, then the device is lost."""
+
+    def __init__(self, inner: Any, lose_after: int | None) -> None:
+        self._inner = inner
+        self._lose_after = lose_after
+        self.reads = 0
+
+    @property
+    def description(self) -> str:
+        return "flaky camera"
+
+    def read(self) -> StereoFrame:
+        self.reads += 1
+        if self._lose_after is not None and self.reads > self._lose_after:
+            raise SourceError("camera 'front': /dev/video0 no frame (device lost?)")
+        frame: StereoFrame = self._inner.read()
+        if self.reads == 3:
+            return frame._replace(left=np.zeros((10, 10), dtype=np.uint8))
+        return frame
+
+    def close(self) -> None:
+        self._inner.close()
+
+
+async def test_lost_camera_is_reopened_with_backoff_and_reported(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    opens: list[float] = []
+    loop = asyncio.get_running_loop()
+
+    def flaky_open(*args: Any, **kwargs: Any) -> Any:
+        opens.append(loop.time())
+        if len(opens) <= 2:
+            raise SourceError("camera 'front': /dev/video0 does not exist; is it plugged in?")
+        return FlakyCamera(real_open_source(*args, **kwargs), 12 if len(opens) == 3 else None)
+
+    monkeypatch.setattr(avoidd.daemon, "open_source", flaky_open)
+    peer = await open_udp_peer()
+    config, calibrations = load_all(synthetic_config(tmp_path, f"udpout:127.0.0.1:{peer.port}"))
+    daemon = Daemon(config, calibrations)
+    task = asyncio.create_task(daemon.run())
+    try:
+        assert await wait_for(lambda: len(opens) >= 4, 20.0), f"opened {len(opens)} times"
+        head = daemon.heads[0]
+        processed = head.stats.processed
+        assert await wait_for(lambda: head.stats.processed > processed + 5, 10.0)
+        assert await wait_for(
+            lambda: sum("camera back" in m.text for m in peer.of_type("STATUSTEXT")) >= 2, 5.0
+        )
+    finally:
+        daemon.stop()
+        assert await asyncio.wait_for(task, timeout=10.0) == 0
+        peer.close()
+    stats = daemon.heads[0].stats
+    assert stats.source_errors == 3  # two failed opens, one lost device
+    assert stats.restarts == 2
+    assert stats.broken == 2  # the wrong-size frame of each flaky camera: dropped, counted
+    gaps = np.diff(opens[:3])
+    assert gaps[0] >= 0.45 and gaps[1] >= 0.95  # backoff doubles from 0.5 s
+    texts = [m.text for m in peer.of_type("STATUSTEXT")]
+    assert texts.count("avoidd: front camera lost") == 2
+    assert texts.count("avoidd: front camera back") == 2
