@@ -248,3 +248,14 @@ def test_pacer_spaces_frames_and_does_not_burst_after_a_stall() -> None:
     time.sleep(0.1)  # a stall of five periods
     after = [pacer.wait() for _ in range(3)]
     assert (np.diff(after) / 1e6 >= 19.0).all()
+
+
+def test_paced_moving_scene_says_when_it_cannot_keep_up(caplog: pytest.LogCaptureFixture) -> None:
+    config = synthetic_config(approach_speed_mps=1.0, fps=200)
+    source = SyntheticSource(config, RectifiedRig(320, 240, 200.0, 200.0, 159.5, 119.5, 0.12), True)
+    with caplog.at_level(logging.WARNING):
+        source.read()
+        source.read()
+    warnings = [r.getMessage() for r in caplog.records if "moving scene" in r.getMessage()]
+    assert len(warnings) == 1
+    assert "not 200.0; lower fps or the resolution, or use replay" in warnings[0]

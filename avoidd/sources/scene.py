@@ -9,6 +9,7 @@ band-limited to the pixel footprint, so both views see the same surface pattern 
 
 from __future__ import annotations
 
+import functools
 import math
 from dataclasses import dataclass
 from typing import NamedTuple
@@ -19,6 +20,7 @@ import numpy.typing as npt
 from avoidd.types import FloatArray, GroundTruth, Image, RectifiedRig
 
 BoolArray = npt.NDArray[np.bool_]
+Indices = npt.NDArray[np.intp]
 
 SKY_ID = 0
 GROUND_ID = 1
@@ -98,15 +100,19 @@ class _Hits:
         s: FloatArray,
         u: FloatArray,
         normal: FloatArray,
+        where: Indices | None = None,
     ) -> None:
-        closer = t < self.t
+        """Keep the offered hits that are nearer; ``where`` are the rays they belong to."""
+        current = self.t if where is None else self.t[where]
+        closer = t < current
         if not closer.any():
             return
-        self.t[closer] = t[closer]
-        self.ids[closer] = surface_id
-        self.s[closer] = s[closer]
-        self.u[closer] = u[closer]
-        self.normal[closer] = normal[closer] if normal.ndim == 2 else normal
+        index = np.flatnonzero(closer) if where is None else where[closer]
+        self.t[index] = t[closer]
+        self.ids[index] = surface_id
+        self.s[index] = s[closer]
+        self.u[index] = u[closer]
+        self.normal[index] = normal[closer] if normal.ndim == 2 else normal
 
 
 def camera_rotation(pitch_deg: float) -> FloatArray:
@@ -126,6 +132,7 @@ def camera_rotation(pitch_deg: float) -> FloatArray:
     return np.asarray(pitch @ optical_to_frd, dtype=np.float32)
 
 
+@functools.lru_cache(maxsize=8)
 def pixel_rays(rig: RectifiedRig, pitch_deg: float) -> FloatArray:
     """World-frame ray of every pixel, scaled so that the ray parameter is the optical depth.
 
@@ -146,6 +153,7 @@ def pixel_rays(rig: RectifiedRig, pitch_deg: float) -> FloatArray:
         axis=-1,
     ).reshape(-1, 3)
     rays: FloatArray = optical @ camera_rotation(pitch_deg).T
+    rays.flags.writeable = False  # shared between frames through the cache
     return rays
 
 
@@ -257,14 +265,19 @@ def _intersect_vertical_cylinder(
 
 
 def _intersect_pole(
-    hits: _Hits, origin: FloatArray, rays: FloatArray, pole: Pole, surface_id: int
+    hits: _Hits,
+    origin: FloatArray,
+    rays: FloatArray,
+    pole: Pole,
+    surface_id: int,
+    where: Indices | None,
 ) -> None:
     radius = pole.diameter_m / 2.0
     centre = (pole.forward_m, pole.right_m)
     t, arc, z, normal = _intersect_vertical_cylinder(
         origin, rays, centre, radius, pole.height_m, inside=False
     )
-    hits.offer(t, surface_id, arc, z, normal)
+    hits.offer(t, surface_id, arc, z, normal, where)
     with np.errstate(divide="ignore", invalid="ignore"):
         t_cap = np.where(np.abs(rays[:, 2]) > 1e-9, (-pole.height_m - origin[2]) / rays[:, 2], -1)
     cx = origin[0] + t_cap * rays[:, 0] - centre[0]
@@ -277,11 +290,17 @@ def _intersect_pole(
         cx.astype(np.float32),
         cy.astype(np.float32),
         np.array([0.0, 0.0, -1.0], dtype=np.float32),
+        where,
     )
 
 
 def _intersect_box(
-    hits: _Hits, origin: FloatArray, rays: FloatArray, box: Box, surface_id: int
+    hits: _Hits,
+    origin: FloatArray,
+    rays: FloatArray,
+    box: Box,
+    surface_id: int,
+    where: Indices | None,
 ) -> None:
     low = np.array(
         [box.forward_m - box.depth_m / 2, box.right_m - box.width_m / 2, -box.height_m],
@@ -307,7 +326,7 @@ def _intersect_box(
     normal = np.zeros_like(rays)
     rows = np.arange(rays.shape[0])
     normal[rows, axis] = -np.sign(rays[rows, axis])
-    hits.offer(t, surface_id, s + np.float32(surface_id * 3.7), u, normal.astype(np.float32))
+    hits.offer(t, surface_id, s + np.float32(surface_id * 3.7), u, normal.astype(np.float32), where)
 
 
 def _sky(rays: FloatArray) -> FloatArray:
@@ -325,8 +344,54 @@ def _albedo_tint(surface_id: int) -> tuple[float, FloatArray]:
     return 0.6, rng.uniform(0.55, 1.0, size=3).astype(np.float32)
 
 
+def _bounds(obstacle: Box | Pole) -> tuple[FloatArray, FloatArray]:
+    """Low and high corners of an obstacle's axis-aligned bounding box (world frame)."""
+    if isinstance(obstacle, Box):
+        half = (obstacle.depth_m / 2, obstacle.width_m / 2)
+    else:
+        half = (obstacle.diameter_m / 2, obstacle.diameter_m / 2)
+    low = np.array(
+        [obstacle.forward_m - half[0], obstacle.right_m - half[1], -obstacle.height_m],
+        dtype=np.float32,
+    )
+    high = np.array([obstacle.forward_m + half[0], obstacle.right_m + half[1], 0.0], np.float32)
+    return low, high
+
+
+def _screen_window(
+    obstacle: Box | Pole, origin: FloatArray, rotation: FloatArray, rig: RectifiedRig
+) -> Indices | None:
+    """Pixels (flat indices) whose rays can hit the obstacle, or None to test every ray.
+
+    The eight corners of the bounding box are projected; the rectangle around them (with a
+    margin) holds every pixel that can see the obstacle. A corner behind the image plane makes
+    the rectangle unbounded, so every ray is tested.
+    """
+    low, high = _bounds(obstacle)
+    corners = np.array(
+        [
+            [x, y, z]
+            for x in (low[0], high[0])
+            for y in (low[1], high[1])
+            for z in (low[2], high[2])
+        ],
+        dtype=np.float32,
+    )
+    optical = (corners - origin) @ rotation
+    if np.any(optical[:, 2] < 0.05):
+        return None
+    u = rig.fx * optical[:, 0] / optical[:, 2] + rig.cx
+    v = rig.fy * optical[:, 1] / optical[:, 2] + rig.cy
+    u0, u1 = max(int(np.floor(u.min())) - 2, 0), min(int(np.ceil(u.max())) + 3, rig.width)
+    v0, v1 = max(int(np.floor(v.min())) - 2, 0), min(int(np.ceil(v.max())) + 3, rig.height)
+    if u0 >= u1 or v0 >= v1:
+        return np.empty(0, dtype=np.intp)
+    rows = np.arange(v0, v1, dtype=np.intp)[:, None] * rig.width
+    return (rows + np.arange(u0, u1, dtype=np.intp)[None, :]).ravel()
+
+
 def _render_view(
-    scene: Scene, rig: RectifiedRig, rays: FloatArray, origin: FloatArray
+    scene: Scene, rig: RectifiedRig, rays: FloatArray, origin: FloatArray, rotation: FloatArray
 ) -> tuple[FloatArray, _Hits]:
     hits = _Hits(rays.shape[0])
     _intersect_ground(hits, origin, rays)
@@ -337,10 +402,14 @@ def _render_view(
         hits.offer(t, BACKDROP_ID, arc, z, normal)
     for index, obstacle in enumerate(scene.obstacles):
         surface_id = FIRST_OBSTACLE_ID + index
+        where = _screen_window(obstacle, origin, rotation, rig)
+        subset = rays if where is None else rays[where]
+        if subset.shape[0] == 0:
+            continue
         if isinstance(obstacle, Box):
-            _intersect_box(hits, origin, rays, obstacle, surface_id)
+            _intersect_box(hits, origin, subset, obstacle, surface_id, where)
         else:
-            _intersect_pole(hits, origin, rays, obstacle, surface_id)
+            _intersect_pole(hits, origin, subset, obstacle, surface_id, where)
 
     ray_norm = np.linalg.norm(rays, axis=1)
     unit = rays / ray_norm[:, None]
@@ -379,10 +448,11 @@ def render_pair(scene: Scene, rig: RectifiedRig) -> RenderedPair:
     if rig.doffs_px != 0.0:
         raise ValueError("the synthetic renderer needs a rig with doffs = 0")
     rays = pixel_rays(rig, scene.camera_pitch_deg)
+    rotation = camera_rotation(scene.camera_pitch_deg)
     left_origin = np.array([0.0, 0.0, -scene.camera_height_m], dtype=np.float32)
     right_origin = np.array([0.0, rig.baseline_m, -scene.camera_height_m], dtype=np.float32)
-    left, hits = _render_view(scene, rig, rays, left_origin)
-    right, _ = _render_view(scene, rig, rays, right_origin)
+    left, hits = _render_view(scene, rig, rays, left_origin, rotation)
+    right, _ = _render_view(scene, rig, rays, right_origin, rotation)
     depth = hits.t.reshape(rig.height, rig.width)
     with np.errstate(invalid="ignore"):
         points = np.where(np.isfinite(hits.t)[:, None], hits.t[:, None] * rays, np.inf)

@@ -70,6 +70,7 @@ class SyntheticSource:
         self._rig = rig
         self._pacer = Pacer(config.fps) if paced else None
         self._seq = 0
+        self._warned_slow = not paced
         self._static: list[StereoFrame] = []
         if config.approach_speed_mps == 0:
             started = time.perf_counter()
@@ -110,14 +111,30 @@ class SyntheticSource:
         if self._static:
             frame = self._static[seq % len(self._static)]._replace(seq=seq)
         else:
+            started = time.perf_counter()
             rendered = render_pair(scene_at(self._config, t_scene_s), self._rig)
             rng = np.random.default_rng((self._config.seed, seq))
             frame = self._noisy(rendered, rng, seq)
+            self._warn_if_slow(time.perf_counter() - started)
         if self._pacer is not None:
             t_capture_ns = self._pacer.wait()
         else:
             t_capture_ns = int(t_scene_s * 1e9)
         return frame._replace(t_capture_ns=t_capture_ns)
+
+    def _warn_if_slow(self, render_s: float) -> None:
+        if self._warned_slow or render_s <= 1.0 / self._config.fps:
+            return
+        self._warned_slow = True
+        logger.warning(
+            "synthetic: a moving scene takes %.0f ms per frame at %dx%d, so it delivers about "
+            "%.1f fps, not %.1f; lower fps or the resolution, or use replay",
+            render_s * 1000,
+            self._rig.width,
+            self._rig.height,
+            1.0 / render_s,
+            self._config.fps,
+        )
 
     def close(self) -> None:
         """Nothing to release."""
