@@ -27,6 +27,7 @@ from avoidd.vision.calibration import Calibration
 logger = logging.getLogger(__name__)
 
 _STATUSTEXT_MIN_INTERVAL_S = 0.5
+_BOOT_GRACE_NS = 5_000_000_000
 _BACKOFF_MIN_S = 0.5
 _BACKOFF_MAX_S = 10.0
 
@@ -225,7 +226,7 @@ class Daemon:
         """Run until SIGINT/SIGTERM or :meth:`stop`.
 
         Returns:
-            The process exit code (0 on a clean shutdown).
+            The process exit code: 0 on a clean shutdown, 1 if a task died.
         """
         loop = asyncio.get_running_loop()
         for signum in (signal.SIGINT, signal.SIGTERM):
@@ -265,10 +266,21 @@ class Daemon:
             asyncio.create_task(self._statustext_loop(announcer), name="statustext"),
             asyncio.create_task(self._log_loop(), name="log"),
         ]
+        stopping = asyncio.create_task(self._stopping.wait(), name="stopping")
+        code = 0
         try:
-            await self._stopping.wait()
+            done, _ = await asyncio.wait([stopping, *tasks], return_when=asyncio.FIRST_COMPLETED)
+            crashed = [task for task in done if task is not stopping]
+            for task in crashed:
+                # These tasks never end on their own: one that did is a bug, and running on
+                # without it (say, without the send loop) would be flying blind. Exit non-zero
+                # so that the service manager restarts avoidd.
+                error = None if task.cancelled() else task.exception()
+                logger.critical("task '%s' ended unexpectedly: %r", task.get_name(), error)
+                code = 1
         finally:
             logger.info("avoidd stopping")
+            stopping.cancel()
             self._stop_threads.set()
             for task in tasks:
                 task.cancel()
@@ -277,7 +289,7 @@ class Daemon:
                 await asyncio.to_thread(head.join, 5.0)
             await self._transport.close()
         logger.info("avoidd stopped; sent %s", dict(self.sent))
-        return 0
+        return code
 
     def _on_receive(self, data: bytes) -> None:
         for message in self._codec.decode(data):
@@ -321,31 +333,33 @@ class Daemon:
                 delay_s = 0.0
             await asyncio.sleep(max(delay_s, 0.0))
 
-    def _health(self) -> int:
-        """Heartbeat system status; announces heads going stale or recovering."""
+    def _stale_heads(self) -> set[str] | None:
+        """Heads without fresh data, or None during the boot grace before any head produced."""
         now_ns = time.monotonic_ns()
+        if now_ns - self._started_ns < _BOOT_GRACE_NS and all(h.latest is None for h in self.heads):
+            return None
         max_age_ns = self.config.pipeline.max_age_ms * 1_000_000
-        booting = now_ns - self._started_ns < 5_000_000_000
-        stale = {h.name for h in self.heads if h.fresh_scan(now_ns, max_age_ns) is None}
-        if booting and all(h.latest is None for h in self.heads):
+        return {h.name for h in self.heads if h.fresh_scan(now_ns, max_age_ns) is None}
+
+    def _health(self) -> int:
+        """Heartbeat system status: BOOT, then ACTIVE while every head is fresh, else CRITICAL."""
+        stale = self._stale_heads()
+        if stale is None:
             return mav.MAV_STATE_BOOT
         return mav.MAV_STATE_CRITICAL if stale else mav.MAV_STATE_ACTIVE
 
     def _check_staleness(self, announce: _Announcer) -> None:
-        now_ns = time.monotonic_ns()
-        max_age_ns = self.config.pipeline.max_age_ms * 1_000_000
-        if now_ns - self._started_ns < 5_000_000_000 and all(h.latest is None for h in self.heads):
+        """Log and announce heads that went stale or recovered since the last check."""
+        stale = self._stale_heads()
+        if stale is None:
             return
-        for head in self.heads:
-            stale = head.fresh_scan(now_ns, max_age_ns) is None
-            if stale and head.name not in self._stale:
-                self._stale.add(head.name)
-                logger.error("head '%s': data stale; sending unknown for its sectors", head.name)
-                announce(mav.MAV_SEVERITY_CRITICAL, f"avoidd: {head.name} stale, no avoidance")
-            elif not stale and head.name in self._stale:
-                self._stale.discard(head.name)
-                logger.warning("head '%s': data fresh again", head.name)
-                announce(mav.MAV_SEVERITY_NOTICE, f"avoidd: {head.name} recovered")
+        for name in sorted(stale - self._stale):
+            logger.error("head '%s': data stale; sending unknown for its sectors", name)
+            announce(mav.MAV_SEVERITY_CRITICAL, f"avoidd: {name} stale, no avoidance")
+        for name in sorted(self._stale - stale):
+            logger.warning("head '%s': data fresh again", name)
+            announce(mav.MAV_SEVERITY_NOTICE, f"avoidd: {name} recovered")
+        self._stale = stale
 
     async def _heartbeat_loop(self) -> None:
         period_s = 1.0 / self.config.mavlink.heartbeat_hz

@@ -213,3 +213,26 @@ async def test_nobody_listening_does_not_stop_the_daemon(tmp_path: Path, kind: s
     await asyncio.sleep(1.0)
     assert not task.done()
     await stop_daemon(daemon, task)
+
+
+def test_codec_survives_garbage_and_finds_messages_after_it() -> None:
+    from hypothesis import given, settings
+    from hypothesis import strategies as st
+
+    from avoidd.mavlink.codec import Codec
+
+    sender = Codec(1, 196)
+    good = sender.heartbeat(4)
+
+    # pymavlink resynchronises after a false start by dropping the whole (false) frame, at most
+    # 280 bytes for MAVLink 2: 20 heartbeats (420 bytes) after any garbage must yield the rest.
+    @settings(max_examples=300, deadline=None)
+    @given(st.binary(max_size=600))
+    def check(noise: bytes) -> None:
+        receiver = Codec(1, 1)
+        receiver.decode(noise)
+        decoded = [m for chunk in range(20) for m in receiver.decode(good)]
+        heartbeats = [m for m in decoded if m.get_type() == "HEARTBEAT"]
+        assert len(heartbeats) >= (20 * len(good) - 280) // len(good)
+
+    check()

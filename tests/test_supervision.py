@@ -81,3 +81,20 @@ async def test_lost_camera_is_reopened_with_backoff_and_reported(
     texts = [m.text for m in peer.of_type("STATUSTEXT")]
     assert texts.count("avoidd: front camera lost") == 2
     assert texts.count("avoidd: front camera back") == 2
+
+
+async def test_a_dead_task_stops_the_daemon_with_an_error(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    def broken_encoder(*args: Any, **kwargs: Any) -> bytes:
+        raise RuntimeError("encoder bug")
+
+    peer = await open_udp_peer()
+    config, calibrations = load_all(synthetic_config(tmp_path, f"udpout:127.0.0.1:{peer.port}"))
+    daemon = Daemon(config, calibrations)
+    monkeypatch.setattr(daemon._codec, "obstacle_distance", broken_encoder)
+    try:
+        code = await asyncio.wait_for(daemon.run(), timeout=10.0)
+    finally:
+        peer.close()
+    assert code == 1

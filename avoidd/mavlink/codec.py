@@ -78,7 +78,8 @@ class Codec:
         messages: list[Message] = []
         try:
             parsed = self._mav.parse_buffer(data)
-        except dialect.MAVError:
+        except Exception:
+            # Garbage on a link must never take the link down: count it and go on.
             self.parse_errors += 1
             return messages
         for message in parsed or ():

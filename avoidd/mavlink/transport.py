@@ -12,7 +12,7 @@ from collections.abc import Callable
 from typing import Any, Protocol
 
 from avoidd.errors import LinkError
-from avoidd.mavlink.url import LinkSpec
+from avoidd.mavlink.url import STANDARD_BAUDS, LinkSpec
 
 logger = logging.getLogger(__name__)
 
@@ -173,23 +173,7 @@ class _TcpClient:
 
 
 _BAUD_CONSTANTS = {
-    baud: getattr(termios, f"B{baud}")
-    for baud in (
-        9600,
-        19200,
-        38400,
-        57600,
-        115200,
-        230400,
-        460800,
-        500000,
-        921600,
-        1000000,
-        1500000,
-        2000000,
-        3000000,
-    )
-    if hasattr(termios, f"B{baud}")
+    baud: getattr(termios, f"B{baud}") for baud in STANDARD_BAUDS if hasattr(termios, f"B{baud}")
 }
 
 
