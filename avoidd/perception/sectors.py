@@ -2,7 +2,9 @@
 
 from __future__ import annotations
 
+import functools
 import math
+from typing import NamedTuple
 
 import numpy as np
 import numpy.typing as npt
@@ -90,33 +92,24 @@ def sector_scan(
     """
     top, bottom = band_rows(depth_m.shape[0], params.row_band)
     band = depth_m[top:bottom, :]
+    columns = _column_geometry(rig, mount)
 
-    yaw = math.radians(mount.yaw_deg)
-    normalised_x = (np.arange(rig.width, dtype=np.float32) - np.float32(rig.cx)) / np.float32(
-        rig.fx
-    )
-    ray_forward = np.float32(math.cos(yaw)) - np.float32(math.sin(yaw)) * normalised_x
-    ray_right = np.float32(math.sin(yaw)) + np.float32(math.cos(yaw)) * normalised_x
-    column_bins = bin_of_bearing(np.degrees(np.arctan2(ray_right, ray_forward)))
-
-    valid = ~np.isnan(band)
     finite = np.isfinite(band)
     z = np.where(finite, band, np.float32(0.0))
-    forward = z * ray_forward[None, :] + np.float32(mount.position_m[0])
-    right = z * ray_right[None, :] + np.float32(mount.position_m[1])
+    forward = z * columns.ray_forward[None, :] + np.float32(mount.position_m[0])
+    right = z * columns.ray_right[None, :] + np.float32(mount.position_m[1])
     range_m = np.hypot(forward, right)
-    point_bins = np.where(
-        finite, bin_of_bearing(np.degrees(np.arctan2(right, forward))), column_bins[None, :]
-    )
     near = finite & (range_m < max_range_m)
+    near_forward, near_right = forward[near], right[near]
 
-    bins_all = np.broadcast_to(column_bins[None, :], band.shape).ravel()
-    total = np.bincount(bins_all, minlength=SECTOR_COUNT)
-    valid_count = np.bincount(bins_all, weights=valid.ravel(), minlength=SECTOR_COUNT)
+    # Pixel counts per bin go through the columns (W values, not W x H).
+    valid_per_column = np.count_nonzero(~np.isnan(band), axis=0)
+    total = np.bincount(columns.bins, minlength=SECTOR_COUNT) * band.shape[0]
+    valid_count = np.bincount(columns.bins, weights=valid_per_column, minlength=SECTOR_COUNT)
 
     focal_baseline = np.float32(rig.fx * rig.baseline_m)
     nearest = nearest_cluster_m(
-        point_bins[near],
+        bin_of_bearing(np.degrees(np.arctan2(near_right, near_forward))),
         focal_baseline / range_m[near],
         focal_baseline,
         params.min_pixels,
@@ -129,8 +122,31 @@ def sector_scan(
         valid_fraction = np.where(total > 0, valid_count / np.maximum(total, 1), 0.0)
     clear = ~has_obstacle & (total > 0) & (valid_fraction >= params.min_valid_fraction)
     distance[clear] = np.inf
-    distance[~covered_bins(rig, mount)] = np.nan
+    distance[~columns.covered] = np.nan
     return SectorScan(t_capture_ns, distance)
+
+
+class _Columns(NamedTuple):
+    ray_forward: FloatArray
+    ray_right: FloatArray
+    bins: IntArray
+    covered: npt.NDArray[np.bool_]
+
+
+@functools.lru_cache(maxsize=32)
+def _column_geometry(rig: RectifiedRig, mount: Mount) -> _Columns:
+    """Horizontal viewing ray, bin and coverage of every column: fixed for a head, so cached."""
+    yaw = math.radians(mount.yaw_deg)
+    normalised_x = (np.arange(rig.width, dtype=np.float32) - np.float32(rig.cx)) / np.float32(
+        rig.fx
+    )
+    ray_forward = np.float32(math.cos(yaw)) - np.float32(math.sin(yaw)) * normalised_x
+    ray_right = np.float32(math.sin(yaw)) + np.float32(math.cos(yaw)) * normalised_x
+    bins = bin_of_bearing(np.degrees(np.arctan2(ray_right, ray_forward)))
+    columns = _Columns(ray_forward, ray_right, bins, covered_bins(rig, mount))
+    for array in columns:
+        array.flags.writeable = False
+    return columns
 
 
 def nearest_cluster_m(
