@@ -1,4 +1,4 @@
-"""The ``avoidd`` command line: run, check-config, replay."""
+"""The ``avoidd`` command line: run, check-config, replay, mock-autopilot, bench-link."""
 
 from __future__ import annotations
 
@@ -65,6 +65,20 @@ def load_all(path: Path) -> tuple[AppConfig, dict[str, Calibration]]:
                 f"{head.calibration} is for {rig.width}x{rig.height}; make them agree"
             )
         calibrations[head.name] = calibration
+    signing = config.mavlink.signing
+    if signing is not None:
+        from avoidd.mavlink.signing import load_key
+
+        try:
+            load_key(signing.key_file, signing.key_credential)
+        except ConfigError as exc:
+            problems.extend(exc.lines)
+        folder = signing.timestamp_file.parent if signing.timestamp_file else None
+        if folder is not None and not os.access(folder, os.W_OK):
+            problems.append(
+                f"mavlink.signing.timestamp_file: folder {folder} missing or not writable; "
+                "create it (systemd: StateDirectory=avoidd)"
+            )
     if problems:
         raise ConfigError(problems)
     return config, calibrations
@@ -79,7 +93,8 @@ def _cmd_check_config(args: argparse.Namespace) -> int:
             f"fx {rig.fx:.1f} px, baseline {rig.baseline_m:.4f} m, "
             f"HFOV {rig.hfov_deg:.1f} deg, yaw {head.mount.yaw_deg:+.0f} deg"
         )
-    print(f"MAVLink {config.mavlink.link} as system {config.mavlink.system_id}")
+    signed = ", signed" if config.mavlink.signing is not None else ""
+    print(f"MAVLink {config.mavlink.link} as system {config.mavlink.system_id}{signed}")
     print(f"{args.config}: OK")
     return EXIT_OK
 
@@ -103,6 +118,44 @@ def _cmd_replay(args: argparse.Namespace) -> int:
         summary = replay(config, calibrations[head.name], head, out, args.input, args.max_frames)
     print(format_summary(summary))
     print(f"wrote {summary.frames} lines to {args.out}")
+    return EXIT_OK
+
+
+def _cmd_mock_autopilot(args: argparse.Namespace) -> int:
+    from avoidd.mavlink.mock_autopilot import MockAutopilot, serve
+    from avoidd.mavlink.signing import load_key
+
+    streams: dict[str, float] = {}
+    for item in args.stream:
+        name, _, rate = item.partition("=")
+        try:
+            streams[name] = float(rate)
+        except ValueError:
+            raise ConfigError([f"--stream {item}: write NAME=HZ, e.g. ATTITUDE=50"]) from None
+    try:
+        autopilot = MockAutopilot(
+            flavour=args.flavour,
+            system_id=args.system_id,
+            mode=args.mode or "",
+            armed=args.armed,
+            key=load_key(args.key_file, None) if args.key_file else None,
+            fixed_streams=streams,
+        )
+    except (KeyError, ValueError) as exc:
+        raise ConfigError([f"mock-autopilot: {exc}"]) from None
+    asyncio.run(serve(autopilot, args.connection, args.duration))
+    return EXIT_OK
+
+
+def _cmd_bench_link(args: argparse.Namespace) -> int:
+    from avoidd.mavlink.bench import format_report, run_bench
+
+    report = asyncio.run(run_bench(args.rate, args.seconds))
+    print(format_report(report))
+    if args.json is not None:
+        import json
+
+        args.json.write_text(json.dumps(report, indent=2) + "\n")
     return EXIT_OK
 
 
@@ -132,6 +185,31 @@ def build_parser() -> argparse.ArgumentParser:
     rep.add_argument("--head", help="head to replay (default: the first)")
     rep.add_argument("--out", type=Path, required=True, help="output .jsonl file")
     rep.set_defaults(handler=_cmd_replay)
+
+    mock = commands.add_parser(
+        "mock-autopilot", help="run a mock ArduPilot/PX4 autopilot (for tests and sitl/)"
+    )
+    mock.add_argument(
+        "connection", help="udpin:/udpout:/tcpin:/tcp:HOST:PORT, or pty:PATH for a serial line"
+    )
+    mock.add_argument("--flavour", choices=["ardupilot", "px4"], default="ardupilot")
+    mock.add_argument("--system-id", type=int, default=1)
+    mock.add_argument("--mode", help="flight mode name (default STABILIZE / POSCTL)")
+    mock.add_argument("--armed", action="store_true")
+    mock.add_argument("--key-file", type=Path, help="sign with this key; ignore unsigned input")
+    mock.add_argument(
+        "--stream", action="append", default=[], help="NAME=HZ: stream without being asked"
+    )
+    mock.add_argument("--duration", type=float, help="stop after this many seconds")
+    mock.set_defaults(handler=_cmd_mock_autopilot)
+
+    bench = commands.add_parser(
+        "bench-link", help="measure CPU for decoding a stream of incoming MAVLink"
+    )
+    bench.add_argument("--rate", type=float, default=2000.0, help="messages per second")
+    bench.add_argument("--seconds", type=float, default=5.0, help="measurement length")
+    bench.add_argument("--json", type=Path, help="also write the figures as JSON")
+    bench.set_defaults(handler=_cmd_bench_link)
     return parser
 
 

@@ -266,14 +266,81 @@ class ObstacleDistanceConfig(_Strict):
         return self
 
 
+class StreamsConfig(_Strict):
+    """Rates at which avoidd asks the autopilot for vehicle state (0 = do not ask).
+
+    Each is requested with MAV_CMD_SET_MESSAGE_INTERVAL, repeated until acknowledged, and again
+    whenever the link comes back (an autopilot forgets requested intervals when it reboots).
+    """
+
+    attitude_hz: float = Field(50.0, ge=0.0, le=1000.0)
+    local_position_hz: float = Field(10.0, ge=0.0, le=1000.0)
+    distance_sensor_hz: float = Field(10.0, ge=0.0, le=1000.0)
+    system_time_hz: float = Field(1.0, ge=0.0, le=1000.0)
+
+
+def _known_message(value: str) -> str:
+    from avoidd.mavlink.codec import message_id
+
+    try:
+        message_id(value)
+    except KeyError:
+        raise ValueError(f"'{value}' is not a MAVLink message name (e.g. RADIO_STATUS)") from None
+    return value
+
+
+class SigningConfig(_Strict):
+    """MAVLink 2 signing. Give the key as ``key_file`` or as a systemd credential name.
+
+    Attributes:
+        key_file: File holding the 32-byte key (raw, or 64 hex digits).
+        key_credential: Name of a credential in ``$CREDENTIALS_DIRECTORY`` (systemd
+            ``LoadCredential=NAME:/path``); preferred in production.
+        allow_unsigned: Messages accepted without a valid signature.
+        timestamp_file: Where the signing timestamp is kept across restarts (needed on boards
+            without a real-time clock); its folder must exist.
+        link_id: Link id carried in our signatures.
+    """
+
+    key_file: ConfigPath | None = None
+    key_credential: str | None = Field(None, pattern=r"^[A-Za-z0-9_.-]+$")
+    allow_unsigned: list[Annotated[str, AfterValidator(_known_message)]] = ["RADIO_STATUS"]
+    timestamp_file: ConfigPath | None = None
+    link_id: int = Field(0, ge=0, le=255)
+
+    @model_validator(mode="after")
+    def _one_key(self) -> SigningConfig:
+        if (self.key_file is None) == (self.key_credential is None):
+            raise ValueError("give exactly one of key_file and key_credential")
+        return self
+
+
 class MavlinkConfig(_Strict):
-    """The MAVLink link and avoidd's identity on it."""
+    """The MAVLink link and avoidd's identity on it.
+
+    Attributes:
+        system_id: The vehicle's system id, or "auto" to learn it from the first autopilot
+            heartbeat (avoidd uses 1 until then). Messages of other systems are ignored.
+        autopilot_component_id: Component id of the autopilot (1).
+        link_timeout_s: The link is down when no autopilot heartbeat came for this long.
+    """
 
     connection: str
-    system_id: int = Field(1, ge=1, le=255)
+    system_id: int | Literal["auto"] = "auto"
     component_id: int = Field(196, ge=1, le=255)
+    autopilot_component_id: int = Field(1, ge=1, le=255)
     heartbeat_hz: float = Field(1.0, gt=0.0, le=10.0)
+    link_timeout_s: float = Field(3.0, ge=0.5, le=60.0)
     obstacle_distance: ObstacleDistanceConfig = ObstacleDistanceConfig()
+    streams: StreamsConfig = StreamsConfig()
+    signing: SigningConfig | None = None
+
+    @field_validator("system_id")
+    @classmethod
+    def _system_id(cls, value: int | str) -> int | str:
+        if isinstance(value, int) and not 1 <= value <= 255:
+            raise ValueError("a system id is 1 to 255, or auto")
+        return value
 
     @field_validator("connection")
     @classmethod
@@ -285,6 +352,11 @@ class MavlinkConfig(_Strict):
     def link(self) -> LinkSpec:
         """The parsed connection string."""
         return parse_connection(self.connection)
+
+    @property
+    def fixed_system_id(self) -> int | None:
+        """The configured system id, or None when it is learned."""
+        return None if self.system_id == "auto" else int(self.system_id)
 
 
 class PipelineConfig(_Strict):

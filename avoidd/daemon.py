@@ -15,8 +15,10 @@ from dataclasses import dataclass, field
 from avoidd.config import AppConfig, HeadConfig
 from avoidd.errors import AvoiddError, BrokenFrame, SourceError, SourceExhausted
 from avoidd.mavlink import codec as mav
+from avoidd.mavlink.link import MavLink
 from avoidd.mavlink.messages import sectors_to_cm, unknown_cm
-from avoidd.mavlink.transport import Transport, create_transport
+from avoidd.mavlink.signing import TimestampStore, load_key
+from avoidd.mavlink.vehicle import Vehicle
 from avoidd.perception.sectors import merge_scans
 from avoidd.pipeline import HeadPipeline, HeadResult
 from avoidd.slot import LatestSlot
@@ -27,6 +29,7 @@ from avoidd.vision.calibration import Calibration
 logger = logging.getLogger(__name__)
 
 _STATUSTEXT_MIN_INTERVAL_S = 0.5
+_SIGNING_KEEP_S = 5.0
 _BOOT_GRACE_NS = 5_000_000_000
 _BACKOFF_MIN_S = 0.5
 _BACKOFF_MAX_S = 10.0
@@ -108,7 +111,9 @@ class Head:
                     logger.error("%s; retrying in %.1f s", exc, backoff_s)
                     if not lost:
                         self._announce(
-                            mav.MAV_SEVERITY_CRITICAL, f"avoidd: {self.name} camera lost"
+                            mav.MAV_SEVERITY_CRITICAL,
+                            f"avoidd: {self.name} camera lost",
+                            f"camera {self.name}",
                         )
                         lost = True
                     self._stop.wait(backoff_s)
@@ -122,7 +127,11 @@ class Head:
                     continue
                 if lost:
                     self.stats.restarts += 1
-                    self._announce(mav.MAV_SEVERITY_NOTICE, f"avoidd: {self.name} camera back")
+                    self._announce(
+                        mav.MAV_SEVERITY_NOTICE,
+                        f"avoidd: {self.name} camera back",
+                        f"camera {self.name}",
+                    )
                     lost = False
                 logger.info("head '%s': reading %s", self.name, source.description)
                 backoff_s = low_s
@@ -140,7 +149,11 @@ class Head:
             except Exception as exc:
                 self.stats.source_errors += 1
                 logger.error("head '%s': source lost (%s); reopening", self.name, exc)
-                self._announce(mav.MAV_SEVERITY_CRITICAL, f"avoidd: {self.name} camera lost")
+                self._announce(
+                    mav.MAV_SEVERITY_CRITICAL,
+                    f"avoidd: {self.name} camera lost",
+                    f"camera {self.name}",
+                )
                 lost = True
                 with contextlib.suppress(Exception):
                     source.close()
@@ -181,18 +194,30 @@ class Head:
 
 
 class _Announcer:
-    """Thread-safe queue of operator messages, sent as STATUSTEXT by the event loop."""
+    """Thread-safe queue of operator messages, sent as STATUSTEXT by the event loop.
+
+    Rate-limited without hiding state: the sender spaces messages 0.5 s apart, and a message
+    about a subject (a camera, a head's freshness, the link) that is still waiting replaces the
+    older one in place, so a flapping camera yields its latest state, not a backlog.
+    """
 
     def __init__(self, loop: asyncio.AbstractEventLoop) -> None:
         self._loop = loop
-        self.pending: deque[tuple[int, str]] = deque(maxlen=32)
+        self.pending: deque[tuple[int, str, str | None]] = deque(maxlen=32)
         self.wakeup = asyncio.Event()
+        self.coalesced = 0
 
-    def __call__(self, severity: int, text: str) -> None:
-        self._loop.call_soon_threadsafe(self._add, severity, text)
+    def __call__(self, severity: int, text: str, key: str | None = None) -> None:
+        self._loop.call_soon_threadsafe(self._add, severity, text, key)
 
-    def _add(self, severity: int, text: str) -> None:
-        self.pending.append((severity, text))
+    def _add(self, severity: int, text: str, key: str | None) -> None:
+        if key is not None:
+            for index, (_, _, pending_key) in enumerate(self.pending):
+                if pending_key == key:
+                    self.pending[index] = (severity, text, key)
+                    self.coalesced += 1
+                    return
+        self.pending.append((severity, text, key))
         self.wakeup.set()
 
 
@@ -210,13 +235,31 @@ class Daemon:
         self._stop_threads = threading.Event()
         self._stopping = asyncio.Event()
         self.heads: list[Head] = []
-        self.sent: Counter[str] = Counter()
-        self.received: Counter[str] = Counter()
-        self.dropped_sends = 0
-        self._transport: Transport | None = None
-        self._codec = mav.Codec(config.mavlink.system_id, config.mavlink.component_id)
+        mavlink = config.mavlink
+        self._codec = mav.Codec(mavlink.fixed_system_id or 1, mavlink.component_id)
+        self._timestamps = TimestampStore(None)
+        if mavlink.signing is not None:
+            signing = mavlink.signing
+            key = load_key(signing.key_file, signing.key_credential)
+            allowed = {mav.message_id(name) for name in signing.allow_unsigned}
+            self._timestamps = TimestampStore(signing.timestamp_file)
+            self._codec.enable_signing(
+                key, self._timestamps.start(), allowed.__contains__, signing.link_id
+            )
+        self.link = MavLink(mavlink.link, self._codec)
+        self.vehicle: Vehicle | None = None
         self._stale: set[str] = set()
         self._started_ns = 0
+
+    @property
+    def sent(self) -> Counter[str]:
+        """Messages sent, by type."""
+        return self.link.sent
+
+    @property
+    def received(self) -> Counter[str]:
+        """Messages received (any system), by type."""
+        return self.link.received
 
     def stop(self) -> None:
         """Ask the daemon to shut down (safe from signal handlers in the loop)."""
@@ -239,20 +282,21 @@ class Daemon:
             for h in self.config.heads
         ]
         spec = self.config.mavlink.link
-        self._transport = create_transport(spec, self._on_receive)
+        self.vehicle = Vehicle(self.link, self.config.mavlink, announcer)
         try:
-            await self._transport.open()
+            await self.link.open()
         except AvoiddError as exc:
             logger.error("%s", exc)
             return 1
         self._started_ns = time.monotonic_ns()
         logger.info(
-            "avoidd started: %d head(s) [%s], MAVLink %s as %d/%d",
+            "avoidd started: %d head(s) [%s], MAVLink %s as %s/%d%s",
             len(self.heads),
             ", ".join(h.name for h in self.heads),
             spec,
             self.config.mavlink.system_id,
             self.config.mavlink.component_id,
+            ", signed" if self.config.mavlink.signing else "",
         )
         announcer(mav.MAV_SEVERITY_INFO, "avoidd started")
         for head in self.heads:
@@ -265,7 +309,10 @@ class Daemon:
             asyncio.create_task(self._heartbeat_loop(), name="heartbeat"),
             asyncio.create_task(self._statustext_loop(announcer), name="statustext"),
             asyncio.create_task(self._log_loop(), name="log"),
+            asyncio.create_task(self.vehicle.run(), name="vehicle"),
         ]
+        if self.config.mavlink.signing is not None:
+            tasks.append(asyncio.create_task(self._signing_loop(), name="signing"))
         stopping = asyncio.create_task(self._stopping.wait(), name="stopping")
         code = 0
         try:
@@ -287,20 +334,16 @@ class Daemon:
             await asyncio.gather(*tasks, return_exceptions=True)
             for head in self.heads:
                 await asyncio.to_thread(head.join, 5.0)
-            await self._transport.close()
-        logger.info("avoidd stopped; sent %s", dict(self.sent))
+            await asyncio.sleep(0.05)  # let the sender flush what is queued
+            await self.link.close()
+            self._timestamps.keep(self._codec.signing_timestamp)
+        logger.info("avoidd stopped; MAVLink %s", self.link.counters())
         return code
 
-    def _on_receive(self, data: bytes) -> None:
-        for message in self._codec.decode(data):
-            self.received[message.get_type()] += 1
-
-    def _send(self, kind: str, data: bytes) -> None:
-        assert self._transport is not None
-        if self._transport.send(data):
-            self.sent[kind] += 1
-        else:
-            self.dropped_sends += 1
+    async def _signing_loop(self) -> None:
+        while True:
+            await asyncio.sleep(_SIGNING_KEEP_S)
+            self._timestamps.keep(self._codec.signing_timestamp)
 
     def _current_scan(self) -> SectorScan | None:
         now_ns = time.monotonic_ns()
@@ -314,17 +357,17 @@ class Daemon:
         next_s = time.monotonic()
         while True:
             scan = self._current_scan()
+            assert self.vehicle is not None
             if scan is None:
                 distances = unknown_cm()
-                time_usec = time.monotonic_ns() // 1000
+                time_usec = self.vehicle.time_usec(time.monotonic_ns())
             else:
                 distances = sectors_to_cm(scan, od.min_distance_cm, od.max_distance_cm)
-                time_usec = scan.t_capture_ns // 1000
-            self._send(
-                "OBSTACLE_DISTANCE",
+                time_usec = self.vehicle.time_usec(scan.t_capture_ns)
+            self.link.send(
                 self._codec.obstacle_distance(
                     time_usec, distances, od.min_distance_cm, od.max_distance_cm
-                ),
+                )
             )
             next_s += period_s
             delay_s = next_s - time.monotonic()
@@ -355,24 +398,26 @@ class Daemon:
             return
         for name in sorted(stale - self._stale):
             logger.error("head '%s': data stale; sending unknown for its sectors", name)
-            announce(mav.MAV_SEVERITY_CRITICAL, f"avoidd: {name} stale, no avoidance")
+            announce(
+                mav.MAV_SEVERITY_CRITICAL, f"avoidd: {name} stale, no avoidance", f"fresh {name}"
+            )
         for name in sorted(self._stale - stale):
             logger.warning("head '%s': data fresh again", name)
-            announce(mav.MAV_SEVERITY_NOTICE, f"avoidd: {name} recovered")
+            announce(mav.MAV_SEVERITY_NOTICE, f"avoidd: {name} recovered", f"fresh {name}")
         self._stale = stale
 
     async def _heartbeat_loop(self) -> None:
         period_s = 1.0 / self.config.mavlink.heartbeat_hz
         while True:
-            self._send("HEARTBEAT", self._codec.heartbeat(self._health()))
+            self.link.send(self._codec.heartbeat(self._health()))
             await asyncio.sleep(period_s)
 
     async def _statustext_loop(self, announce: _Announcer) -> None:
         while True:
             self._check_staleness(announce)
             while announce.pending:
-                severity, text = announce.pending.popleft()
-                self._send("STATUSTEXT", self._codec.statustext(severity, text))
+                severity, text, _ = announce.pending.popleft()
+                self.link.send(self._codec.statustext(severity, text))
                 await asyncio.sleep(_STATUSTEXT_MIN_INTERVAL_S)
             announce.wakeup.clear()
             with contextlib.suppress(TimeoutError):
@@ -405,4 +450,27 @@ class Daemon:
                 if nearest is not None
                 else ("nearest none" if scan is not None else "no fresh data")
             )
-            logger.info("%s; %s; sent %d", "; ".join(parts), where, self.sent["OBSTACLE_DISTANCE"])
+            logger.info(
+                "%s; %s; sent %d; %s",
+                "; ".join(parts),
+                where,
+                self.sent["OBSTACLE_DISTANCE"],
+                self._link_summary(),
+            )
+
+    def _link_summary(self) -> str:
+        """One phrase on the link: vehicle state and error counters."""
+        vehicle = self.vehicle
+        link = self.link
+        if vehicle is None or not vehicle.link_up or vehicle.mode is None:
+            state = "link down"
+        else:
+            mode = vehicle.mode
+            state = (
+                f"link up: {mode.autopilot} sys {vehicle.system_id} {mode.name} "
+                f"{'armed' if mode.armed else 'disarmed'}"
+            )
+        return (
+            f"{state}; rx {sum(link.received.values())}, dropped {sum(link.dropped.values())}, "
+            f"parse errors {link.parse_errors}, unsigned rejected {link.signature_rejects}"
+        )

@@ -94,7 +94,7 @@ def replay(
     """
     od = config.mavlink.obstacle_distance
     pipeline = HeadPipeline(head, calibration, od.max_distance_cm / 100.0)
-    codec = Codec(config.mavlink.system_id, config.mavlink.component_id)
+    codec = Codec(config.mavlink.fixed_system_id or 1, config.mavlink.component_id)
     source = open_source(
         head.source, calibration.rig, head.name, paced=False, input_path=input_path
     )
@@ -113,8 +113,10 @@ def replay(
                 break
             started = time.perf_counter()
             sectors_cm = sectors_to_cm(result.scan, od.min_distance_cm, od.max_distance_cm)
-            codec.obstacle_distance(
-                result.t_capture_ns // 1000, sectors_cm, od.min_distance_cm, od.max_distance_cm
+            codec.pack(
+                codec.obstacle_distance(
+                    result.t_capture_ns // 1000, sectors_cm, od.min_distance_cm, od.max_distance_cm
+                )
             )
             timing = {**result.timing_ms, "encode": (time.perf_counter() - started) * 1000.0}
             nearest = result.scan.nearest()

@@ -100,7 +100,7 @@ def test_shipped_configs_validate(name: str) -> None:
             "udpout:127.0.0.1:14550",
             "udp:127.0.0.1:14550",
             "avoidd.yaml:11: mavlink.connection: unknown connection 'udp:127.0.0.1:14550'; use "
-            "udpout:HOST:PORT, udpin:HOST:PORT, tcp:HOST:PORT or /dev/ttyX,BAUD "
+            "udpout:HOST:PORT, udpin:HOST:PORT, tcp:HOST:PORT, tcpin:HOST:PORT or /dev/ttyX,BAUD "
             "(got 'udp:127.0.0.1:14550')",
         ),
         ("version: 1", "version: 2", "avoidd.yaml:1: version: Input should be 1 (got 2)"),

@@ -222,7 +222,7 @@ def test_codec_survives_garbage_and_finds_messages_after_it() -> None:
     from avoidd.mavlink.codec import Codec
 
     sender = Codec(1, 196)
-    good = sender.heartbeat(4)
+    good = sender.pack(sender.heartbeat(4))
 
     # pymavlink resynchronises after a false start by dropping the whole (false) frame, at most
     # 280 bytes for MAVLink 2: 20 heartbeats (420 bytes) after any garbage must yield the rest.

@@ -1,22 +1,42 @@
-"""The one wrapper around pymavlink's generated MAVLink 2 codec (dialect ardupilotmega)."""
+"""The one wrapper around pymavlink's generated MAVLink 2 codec (dialect ardupilotmega).
+
+Building a message (``heartbeat``, ``obstacle_distance`` ...) has no side effect; only
+:meth:`Codec.pack` advances the link's sequence number and signing timestamp, so exactly one task
+per link (its sender) may call it.
+"""
 
 from __future__ import annotations
 
 import os
+from collections.abc import Callable, Iterable
 from typing import Any
 
 os.environ["MAVLINK20"] = "1"
 
 from pymavlink.dialects.v20 import ardupilotmega as dialect
 
+from avoidd.mavlink.signing import SIGNING_KEY_BYTES, wall_timestamp
+
 MAV_TYPE_ONBOARD_CONTROLLER = int(dialect.MAV_TYPE_ONBOARD_CONTROLLER)
+MAV_TYPE_GCS = int(dialect.MAV_TYPE_GCS)
+MAV_TYPE_QUADROTOR = int(dialect.MAV_TYPE_QUADROTOR)
 MAV_AUTOPILOT_INVALID = int(dialect.MAV_AUTOPILOT_INVALID)
+MAV_AUTOPILOT_ARDUPILOTMEGA = int(dialect.MAV_AUTOPILOT_ARDUPILOTMEGA)
+MAV_AUTOPILOT_PX4 = int(dialect.MAV_AUTOPILOT_PX4)
+MAV_MODE_FLAG_SAFETY_ARMED = int(dialect.MAV_MODE_FLAG_SAFETY_ARMED)
+MAV_MODE_FLAG_CUSTOM_MODE_ENABLED = int(dialect.MAV_MODE_FLAG_CUSTOM_MODE_ENABLED)
 MAV_STATE_ACTIVE = int(dialect.MAV_STATE_ACTIVE)
+MAV_STATE_STANDBY = int(dialect.MAV_STATE_STANDBY)
 MAV_STATE_CRITICAL = int(dialect.MAV_STATE_CRITICAL)
 MAV_STATE_BOOT = int(dialect.MAV_STATE_BOOT)
 MAV_FRAME_BODY_FRD = int(dialect.MAV_FRAME_BODY_FRD)
 MAV_DISTANCE_SENSOR_UNKNOWN = int(dialect.MAV_DISTANCE_SENSOR_UNKNOWN)
+MAV_COMP_ID_AUTOPILOT1 = int(dialect.MAV_COMP_ID_AUTOPILOT1)
 MAV_COMP_ID_OBSTACLE_AVOIDANCE = int(dialect.MAV_COMP_ID_OBSTACLE_AVOIDANCE)
+MAV_CMD_SET_MESSAGE_INTERVAL = int(dialect.MAV_CMD_SET_MESSAGE_INTERVAL)
+MAV_RESULT_ACCEPTED = int(dialect.MAV_RESULT_ACCEPTED)
+MAV_RESULT_UNSUPPORTED = int(dialect.MAV_RESULT_UNSUPPORTED)
+MAV_SENSOR_ROTATION_PITCH_270 = int(dialect.MAV_SENSOR_ROTATION_PITCH_270)
 MAV_SEVERITY_CRITICAL = int(dialect.MAV_SEVERITY_CRITICAL)
 MAV_SEVERITY_WARNING = int(dialect.MAV_SEVERITY_WARNING)
 MAV_SEVERITY_NOTICE = int(dialect.MAV_SEVERITY_NOTICE)
@@ -25,36 +45,99 @@ MAV_SEVERITY_INFO = int(dialect.MAV_SEVERITY_INFO)
 STATUSTEXT_MAX_CHARS = 50
 
 Message = Any
-"""A decoded pymavlink message (untyped; read fields by name)."""
+"""A pymavlink message object (untyped; read fields by name)."""
+
+
+def message_id(name: str) -> int:
+    """The numeric id of a message by its name (``"ATTITUDE"`` -> 30).
+
+    Raises:
+        KeyError: No such message in the dialect.
+    """
+    msg_id = getattr(dialect, f"MAVLINK_MSG_ID_{name}", None)
+    if msg_id is None:
+        raise KeyError(name)
+    return int(msg_id)
+
+
+def message_name(msg_id: int) -> str:
+    """The name of a message id, or ``"MSG n"`` for one the dialect lacks."""
+    cls = dialect.mavlink_map.get(msg_id)
+    return str(cls.msgname) if cls is not None else f"MSG {msg_id}"
 
 
 class Codec:
-    """Encodes avoidd's messages and decodes incoming bytes for one link.
-
-    The codec keeps the link's sequence counter, so only one task may encode with it.
+    """Builds, packs and decodes messages for one link.
 
     Args:
-        system_id: avoidd's system id (the vehicle's).
-        component_id: avoidd's component id (196, obstacle avoidance).
+        system_id: System id of the messages it packs (the vehicle's).
+        component_id: Component id of the messages it packs.
     """
 
     def __init__(self, system_id: int, component_id: int) -> None:
         self._mav = dialect.MAVLink(None, srcSystem=system_id, srcComponent=component_id)
         self._mav.robust_parsing = True
         self.parse_errors = 0
+        self.signature_rejects = 0
 
-    def heartbeat(self, system_status: int) -> bytes:
+    @property
+    def system_id(self) -> int:
+        """System id used when packing."""
+        return int(self._mav.srcSystem)
+
+    @system_id.setter
+    def system_id(self, value: int) -> None:
+        self._mav.srcSystem = value
+
+    @property
+    def component_id(self) -> int:
+        """Component id used when packing."""
+        return int(self._mav.srcComponent)
+
+    # --- signing -----------------------------------------------------------------------------
+
+    def enable_signing(
+        self,
+        key: bytes,
+        timestamp_10us: int,
+        allow_unsigned: Callable[[int], bool],
+        link_id: int = 0,
+    ) -> None:
+        """Sign every packed message and reject incoming ones without a valid signature.
+
+        Args:
+            key: The 32-byte secret key.
+            timestamp_10us: Starting signing timestamp (10 us units since 2015-01-01 UTC).
+            allow_unsigned: Given a message id, whether to accept it unsigned or badly signed.
+            link_id: The link id carried in the signature.
+        """
+        if len(key) != SIGNING_KEY_BYTES:
+            raise ValueError(f"a MAVLink signing key has {SIGNING_KEY_BYTES} bytes, not {len(key)}")
+        signing = self._mav.signing
+        signing.secret_key = key
+        signing.timestamp = timestamp_10us
+        signing.link_id = link_id
+        signing.sign_outgoing = True
+        signing.allow_unsigned_callback = lambda _mav, msg_id: allow_unsigned(msg_id)
+
+    @property
+    def signing_timestamp(self) -> int:
+        """The current signing timestamp (10 us units since 2015-01-01), 0 when not signing."""
+        return int(self._mav.signing.timestamp) if self._mav.signing.sign_outgoing else 0
+
+    # --- building ----------------------------------------------------------------------------
+
+    def heartbeat(self, system_status: int) -> Message:
         """A HEARTBEAT of an onboard controller (no autopilot)."""
-        message = self._mav.heartbeat_encode(
+        return self._mav.heartbeat_encode(
             MAV_TYPE_ONBOARD_CONTROLLER, MAV_AUTOPILOT_INVALID, 0, 0, system_status
         )
-        return bytes(message.pack(self._mav))
 
     def obstacle_distance(
         self, time_usec: int, distances_cm: list[int], min_cm: int, max_cm: int
-    ) -> bytes:
+    ) -> Message:
         """An OBSTACLE_DISTANCE of 72 bins of 5 degrees, bin 0 centred ahead, BODY_FRD."""
-        message = self._mav.obstacle_distance_encode(
+        return self._mav.obstacle_distance_encode(
             time_usec,
             MAV_DISTANCE_SENSOR_UNKNOWN,
             distances_cm,
@@ -65,26 +148,65 @@ class Codec:
             0.0,
             MAV_FRAME_BODY_FRD,
         )
-        return bytes(message.pack(self._mav))
 
-    def statustext(self, severity: int, text: str) -> bytes:
+    def statustext(self, severity: int, text: str) -> Message:
         """A STATUSTEXT, cut to the 50 characters one message carries."""
         payload = text.encode("ascii", "replace")[:STATUSTEXT_MAX_CHARS]
-        message = self._mav.statustext_encode(severity, payload)
+        return self._mav.statustext_encode(severity, payload)
+
+    def set_message_interval(
+        self, target_system: int, target_component: int, msg_id: int, interval_us: int
+    ) -> Message:
+        """A COMMAND_LONG MAV_CMD_SET_MESSAGE_INTERVAL (interval -1 stops the stream)."""
+        return self._mav.command_long_encode(
+            target_system,
+            target_component,
+            MAV_CMD_SET_MESSAGE_INTERVAL,
+            0,
+            float(msg_id),
+            float(interval_us),
+            0.0,
+            0.0,
+            0.0,
+            0.0,
+            0.0,
+        )
+
+    def build(self, name: str, *fields: Any) -> Message:
+        """Build any message of the dialect by name and fields (used by the mock autopilot)."""
+        encoder = getattr(self._mav, f"{name.lower()}_encode")
+        return encoder(*fields)
+
+    # --- packing and decoding ----------------------------------------------------------------
+
+    def pack(self, message: Message) -> bytes:
+        """Serialise a message, taking the next sequence number (and signing it when enabled)."""
+        signing = self._mav.signing
+        if signing.sign_outgoing:
+            # The signing timestamp follows the wall clock when that is ahead, and otherwise
+            # counts up by one per message, so it never goes back.
+            signing.timestamp = max(signing.timestamp, wall_timestamp())
         return bytes(message.pack(self._mav))
 
-    def decode(self, data: bytes) -> list[Message]:
-        """Decode every complete message in ``data`` (partial ones are kept for the next call)."""
+    def decode(self, data: bytes | Iterable[int]) -> list[Message]:
+        """Decode every complete message in ``data`` (partial ones are kept for the next call).
+
+        Bytes that do not form a valid message are counted in ``parse_errors``, and messages
+        refused by signing in ``signature_rejects``; neither ever raises.
+        """
         messages: list[Message] = []
         try:
-            parsed = self._mav.parse_buffer(data)
+            parsed = self._mav.parse_buffer(bytes(data))
         except Exception:
             # Garbage on a link must never take the link down: count it and go on.
             self.parse_errors += 1
             return messages
         for message in parsed or ():
             if message.get_type() == "BAD_DATA":
-                self.parse_errors += 1
+                if "signature" in str(getattr(message, "reason", "")).lower():
+                    self.signature_rejects += 1
+                else:
+                    self.parse_errors += 1
             else:
                 messages.append(message)
         return messages

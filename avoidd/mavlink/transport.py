@@ -66,6 +66,12 @@ class _UdpTransport:
     def connected(self) -> bool:
         return self._transport is not None and self._peer is not None
 
+    @property
+    def local_port(self) -> int:
+        """The local port (useful when bound to port 0)."""
+        assert self._transport is not None
+        return int(self._transport.get_extra_info("sockname")[1])
+
     def datagram_received(self, data: bytes, addr: Any) -> None:
         if self._spec.kind == "udpin":
             self._peer = addr
@@ -134,7 +140,7 @@ class _TcpClient:
             except (OSError, TimeoutError) as exc:
                 logger.debug("MAVLink %s: connect failed (%s)", self._spec, exc)
                 await asyncio.sleep(backoff_s)
-                backoff_s = min(backoff_s * 2, 1.0)
+                backoff_s = min(backoff_s * 2, 0.5)
                 continue
             backoff_s = 0.1
             self._writer = writer
@@ -178,27 +184,33 @@ _BAUD_CONSTANTS = {
 
 
 class _Serial:
-    """A serial port in raw mode, read and written through the event loop (never blocking)."""
+    """A serial port in raw mode, read and written through the event loop (never blocking).
+
+    A port that is missing or fails (a USB adapter unplugged, the far end of a pty closed) is
+    reopened in the background with backoff; sends while it is away are dropped.
+    """
 
     def __init__(self, spec: LinkSpec, on_receive: ReceiveCallback) -> None:
         self._spec = spec
         self._on_receive = on_receive
         self._fd: int | None = None
         self._pending = bytearray()
+        self._task: asyncio.Task[None] | None = None
+        self._lost = asyncio.Event()
+        self.reconnects = 0
 
     @property
     def connected(self) -> bool:
         return self._fd is not None
 
     async def open(self) -> None:
+        if self._spec.baud not in _BAUD_CONSTANTS:
+            raise LinkError(f"MAVLink {self._spec}: baud rate {self._spec.baud} not supported here")
+        self._task = asyncio.create_task(self._run(), name=f"serial {self._spec}")
+
+    def _open_device(self) -> int:
         spec = self._spec
-        if spec.baud not in _BAUD_CONSTANTS:
-            raise LinkError(f"MAVLink {spec}: baud rate {spec.baud} not supported here")
-        try:
-            fd = os.open(spec.device, os.O_RDWR | os.O_NOCTTY | os.O_NONBLOCK)
-        except OSError as exc:
-            hint = "is the user in group 'dialout'?" if exc.errno == 13 else "is it plugged in?"
-            raise LinkError(f"MAVLink {spec}: cannot open {spec.device}; {hint}") from exc
+        fd = os.open(spec.device, os.O_RDWR | os.O_NOCTTY | os.O_NONBLOCK)
         try:
             tty.setraw(fd)
             attrs = termios.tcgetattr(fd)
@@ -209,8 +221,32 @@ class _Serial:
         except termios.error:
             # A pty or some USB adapters refuse line settings; raw bytes still flow.
             logger.debug("MAVLink %s: line settings not applied", spec)
-        self._fd = fd
-        asyncio.get_running_loop().add_reader(fd, self._readable)
+        return fd
+
+    async def _run(self) -> None:
+        backoff_s = 0.1
+        failures = 0
+        while True:
+            try:
+                fd = self._open_device()
+            except OSError as exc:
+                hint = "is the user in group 'dialout'?" if exc.errno == 13 else "is it plugged in?"
+                log = logger.error if failures == 0 else logger.debug
+                log("MAVLink %s: cannot open %s (%s); %s", self._spec, self._spec.device, exc, hint)
+                failures += 1
+                await asyncio.sleep(backoff_s)
+                backoff_s = min(backoff_s * 2, 0.5)
+                continue
+            if failures or self.reconnects:
+                logger.warning("MAVLink %s: port open again", self._spec)
+            failures = 0
+            backoff_s = 0.1
+            self._fd = fd
+            self._lost.clear()
+            asyncio.get_running_loop().add_reader(fd, self._readable)
+            await self._lost.wait()
+            self.reconnects += 1
+            logger.warning("MAVLink %s: port lost; reopening", self._spec)
 
     def _readable(self) -> None:
         if self._fd is None:
@@ -220,11 +256,13 @@ class _Serial:
         except BlockingIOError:
             return
         except OSError as exc:
-            logger.warning("MAVLink %s: read failed (%s)", self._spec, exc)
+            logger.debug("MAVLink %s: read failed (%s)", self._spec, exc)
             self._drop()
             return
         if data:
             self._on_receive(data)
+        else:
+            self._drop()
 
     def _writable(self) -> None:
         self._flush()
@@ -238,7 +276,7 @@ class _Serial:
         except BlockingIOError:
             written = 0
         except OSError as exc:
-            logger.warning("MAVLink %s: write failed (%s)", self._spec, exc)
+            logger.debug("MAVLink %s: write failed (%s)", self._spec, exc)
             self._drop()
             return
         del self._pending[:written]
@@ -253,8 +291,11 @@ class _Serial:
         loop = asyncio.get_running_loop()
         loop.remove_reader(self._fd)
         loop.remove_writer(self._fd)
-        os.close(self._fd)
+        with contextlib.suppress(OSError):
+            os.close(self._fd)
         self._fd = None
+        self._pending.clear()
+        self._lost.set()
 
     def send(self, data: bytes) -> bool:
         if self._fd is None or len(self._pending) > _MAX_WRITE_BUFFER:
@@ -264,7 +305,82 @@ class _Serial:
         return True
 
     async def close(self) -> None:
-        self._drop()
+        if self._task is not None:
+            self._task.cancel()
+            with contextlib.suppress(asyncio.CancelledError):
+                await self._task
+            self._task = None
+        fd, self._fd = self._fd, None
+        if fd is not None:
+            loop = asyncio.get_running_loop()
+            loop.remove_reader(fd)
+            loop.remove_writer(fd)
+            with contextlib.suppress(OSError):
+                os.close(fd)
+
+
+class _TcpServer:
+    """A TCP server for one client at a time; a new client replaces the previous one."""
+
+    def __init__(self, spec: LinkSpec, on_receive: ReceiveCallback) -> None:
+        self._spec = spec
+        self._on_receive = on_receive
+        self._server: asyncio.Server | None = None
+        self._writer: asyncio.StreamWriter | None = None
+        self.clients = 0
+
+    @property
+    def connected(self) -> bool:
+        return self._writer is not None and not self._writer.is_closing()
+
+    @property
+    def local_port(self) -> int:
+        """The listening port (useful when bound to port 0)."""
+        assert self._server is not None
+        return int(self._server.sockets[0].getsockname()[1])
+
+    async def open(self) -> None:
+        try:
+            self._server = await asyncio.start_server(
+                self._client, self._spec.host, self._spec.port, reuse_address=True
+            )
+        except OSError as exc:
+            raise LinkError(
+                f"MAVLink {self._spec}: {exc.strerror or exc}; check the address"
+            ) from exc
+
+    async def _client(self, reader: asyncio.StreamReader, writer: asyncio.StreamWriter) -> None:
+        if self._writer is not None:
+            self._writer.close()
+        self._writer = writer
+        self.clients += 1
+        logger.info("MAVLink %s: client connected", self._spec)
+        try:
+            while data := await reader.read(4096):
+                self._on_receive(data)
+        except OSError as exc:
+            logger.debug("MAVLink %s: read failed (%s)", self._spec, exc)
+        finally:
+            if self._writer is writer:
+                self._writer = None
+            writer.close()
+
+    def send(self, data: bytes) -> bool:
+        writer = self._writer
+        if writer is None or writer.is_closing():
+            return False
+        if writer.transport.get_write_buffer_size() > _MAX_WRITE_BUFFER:
+            return False
+        writer.write(data)
+        return True
+
+    async def close(self) -> None:
+        if self._writer is not None:
+            self._writer.close()
+            self._writer = None
+        if self._server is not None:
+            self._server.close()
+            self._server = None
 
 
 def create_transport(spec: LinkSpec, on_receive: ReceiveCallback) -> Transport:
@@ -281,4 +397,6 @@ def create_transport(spec: LinkSpec, on_receive: ReceiveCallback) -> Transport:
         return _UdpTransport(spec, on_receive)
     if spec.kind == "tcp":
         return _TcpClient(spec, on_receive)
+    if spec.kind == "tcpin":
+        return _TcpServer(spec, on_receive)
     return _Serial(spec, on_receive)

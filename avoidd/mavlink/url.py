@@ -1,4 +1,4 @@
-"""Parse pymavlink-style connection strings (udpout:, udpin:, tcp:, /dev/tty...,baud)."""
+"""Parse pymavlink-style connection strings (udpout:, udpin:, tcp:, tcpin:, /dev/tty...,baud)."""
 
 from __future__ import annotations
 
@@ -6,7 +6,7 @@ import ipaddress
 from dataclasses import dataclass
 from typing import Literal
 
-LinkKind = Literal["udpout", "udpin", "tcp", "serial"]
+LinkKind = Literal["udpout", "udpin", "tcp", "tcpin", "serial"]
 
 DEFAULT_BAUD = 115200
 STANDARD_BAUDS = (
@@ -32,7 +32,8 @@ class LinkSpec:
 
     Attributes:
         kind: ``udpout`` (send to host:port), ``udpin`` (listen on host:port, answer the last
-            sender), ``tcp`` (client to host:port) or ``serial``.
+            sender), ``tcp`` (client to host:port), ``tcpin`` (server on host:port, one client at a
+            time) or ``serial``.
         host: Host name or address for network links.
         port: Port for network links.
         device: Device path for serial links.
@@ -56,7 +57,7 @@ def parse_connection(text: str) -> LinkSpec:
     """Parse a connection string.
 
     Args:
-        text: ``udpout:HOST:PORT``, ``udpin:HOST:PORT``, ``tcp:HOST:PORT`` or
+        text: ``udpout:HOST:PORT``, ``udpin:HOST:PORT``, ``tcp:HOST:PORT``, ``tcpin:HOST:PORT`` or
             ``/dev/ttyX[,BAUD]`` (IPv6 hosts in brackets, e.g. ``udpout:[::1]:14550``).
 
     Returns:
@@ -69,13 +70,19 @@ def parse_connection(text: str) -> LinkSpec:
     if text.startswith("/dev/") or text.startswith("serial:"):
         return _parse_serial(text.removeprefix("serial:"))
     scheme, sep, rest = text.partition(":")
-    if not sep or scheme not in ("udpout", "udpin", "tcp"):
+    kinds: dict[str, LinkKind] = {
+        "udpout": "udpout",
+        "udpin": "udpin",
+        "tcp": "tcp",
+        "tcpin": "tcpin",
+    }
+    if not sep or scheme not in kinds:
         raise ValueError(
             f"unknown connection '{text}'; use udpout:HOST:PORT, udpin:HOST:PORT, "
-            "tcp:HOST:PORT or /dev/ttyX,BAUD"
+            "tcp:HOST:PORT, tcpin:HOST:PORT or /dev/ttyX,BAUD"
         )
     host, port = _split_host_port(text, rest)
-    kind: LinkKind = "udpout" if scheme == "udpout" else "udpin" if scheme == "udpin" else "tcp"
+    kind = kinds[scheme]
     if kind in ("udpout", "tcp") and host in ("0.0.0.0", "::"):
         raise ValueError(f"'{text}': {kind} needs a destination address, not a wildcard")
     return LinkSpec(kind=kind, host=host, port=port)

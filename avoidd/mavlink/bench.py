@@ -1,0 +1,130 @@
+"""``avoidd bench-link``: CPU that avoidd spends decoding a busy incoming MAVLink stream.
+
+A mock autopilot in a separate process streams ATTITUDE, LOCAL_POSITION_NED and DISTANCE_SENSOR
+over loopback UDP at the asked total rate; this process receives them with the daemon's own link
+and vehicle code and measures its CPU time (user + system) and event-loop lag over a window.
+"""
+
+from __future__ import annotations
+
+import asyncio
+import contextlib
+import resource
+import socket
+import sys
+import time
+from typing import Any
+
+from avoidd.config import MavlinkConfig, StreamsConfig
+from avoidd.mavlink.codec import Codec
+from avoidd.mavlink.link import MavLink
+from avoidd.mavlink.vehicle import Vehicle
+
+_SHARES = (("ATTITUDE", 0.5), ("LOCAL_POSITION_NED", 0.25), ("DISTANCE_SENSOR", 0.25))
+_WARMUP_S = 1.5
+
+
+def _cpu_s() -> float:
+    usage = resource.getrusage(resource.RUSAGE_SELF)
+    return usage.ru_utime + usage.ru_stime
+
+
+class LagMonitor:
+    """Measures how late the event loop wakes a task that sleeps ``period_s`` at a time."""
+
+    def __init__(self, period_s: float = 0.005) -> None:
+        self.period_s = period_s
+        self.max_lag_ms = 0.0
+        self.samples = 0
+
+    def reset(self) -> None:
+        """Forget the lag seen so far."""
+        self.max_lag_ms = 0.0
+        self.samples = 0
+
+    async def run(self) -> None:
+        """Sleep and measure forever."""
+        while True:
+            started = time.perf_counter()
+            await asyncio.sleep(self.period_s)
+            lag_ms = (time.perf_counter() - started - self.period_s) * 1000.0
+            self.max_lag_ms = max(self.max_lag_ms, lag_ms)
+            self.samples += 1
+
+
+def _ignore(severity: int, text: str, key: str | None = None) -> None:
+    """An announcer that drops everything (nobody to tell during a benchmark)."""
+
+
+async def run_bench(rate_hz: float, seconds: float) -> dict[str, Any]:
+    """Stream ``rate_hz`` messages per second at this process for ``seconds`` and measure.
+
+    Returns:
+        Figures: messages received per second, CPU percent of one core, microseconds of CPU
+        per message, parse errors and the largest event-loop lag.
+    """
+    with socket.socket(socket.AF_INET, socket.SOCK_DGRAM) as probe:
+        probe.bind(("127.0.0.1", 0))
+        port = probe.getsockname()[1]
+    config = MavlinkConfig(
+        connection=f"udpin:127.0.0.1:{port}",
+        streams=StreamsConfig(
+            attitude_hz=0, local_position_hz=0, distance_sensor_hz=0, system_time_hz=0
+        ),
+    )
+    link = MavLink(config.link, Codec(1, 196))
+    Vehicle(link, config, _ignore)
+    await link.open()
+    streams = [f"--stream={name}={rate_hz * share:g}" for name, share in _SHARES]
+    mock = await asyncio.create_subprocess_exec(
+        sys.executable,
+        "-m",
+        "avoidd",
+        "--log-level=WARNING",
+        "mock-autopilot",
+        f"udpout:127.0.0.1:{port}",
+        f"--duration={_WARMUP_S + seconds + 2.0}",
+        *streams,
+    )
+    lag = LagMonitor()
+    lag_task = asyncio.create_task(lag.run())
+    try:
+        await asyncio.sleep(_WARMUP_S)
+        lag.reset()
+        count0 = sum(link.received.values())
+        cpu0, wall0 = _cpu_s(), time.perf_counter()
+        await asyncio.sleep(seconds)
+        cpu_s, wall_s = _cpu_s() - cpu0, time.perf_counter() - wall0
+        count = sum(link.received.values()) - count0
+    finally:
+        lag_task.cancel()
+        with contextlib.suppress(asyncio.CancelledError):
+            await lag_task
+        with contextlib.suppress(ProcessLookupError):
+            mock.terminate()
+        await mock.wait()
+        await link.close()
+    return {
+        "rate_asked_hz": rate_hz,
+        "seconds": round(wall_s, 3),
+        "received_per_s": round(count / wall_s, 1),
+        "cpu_percent_one_core": round(100.0 * cpu_s / wall_s, 2),
+        "cpu_us_per_message": round(1e6 * cpu_s / max(count, 1), 2),
+        "parse_errors": link.parse_errors,
+        "max_loop_lag_ms": round(lag.max_lag_ms, 2),
+    }
+
+
+def format_report(report: dict[str, Any]) -> str:
+    """The figures as a short human-readable block."""
+    return "\n".join(
+        [
+            f"incoming MAVLink over loopback UDP, asked {report['rate_asked_hz']:g} msg/s "
+            f"for {report['seconds']} s",
+            f"  received          {report['received_per_s']:.0f} msg/s",
+            f"  CPU               {report['cpu_percent_one_core']:.1f}% of one core "
+            f"({report['cpu_us_per_message']:.1f} us per message)",
+            f"  parse errors      {report['parse_errors']}",
+            f"  max loop lag      {report['max_loop_lag_ms']:.1f} ms",
+        ]
+    )

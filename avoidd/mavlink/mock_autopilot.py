@@ -1,0 +1,345 @@
+"""A mock autopilot that speaks real MAVLink 2 bytes, for tests, benchmarks and sitl/.
+
+It sends ArduPilot- or PX4-flavoured heartbeats with a decodable flight mode, streams ATTITUDE,
+LOCAL_POSITION_NED, a downward DISTANCE_SENSOR and SYSTEM_TIME at whatever interval it is asked
+for with MAV_CMD_SET_MESSAGE_INTERVAL, acknowledges commands, and records every message it decodes.
+It listens on UDP or TCP, dials out, or owns a pty whose other end is a "serial port" at a fixed
+path (a symlink), like a flight controller on USB.
+"""
+
+from __future__ import annotations
+
+import asyncio
+import contextlib
+import logging
+import math
+import os
+import pty
+import time
+import tty
+from collections import Counter
+from collections.abc import Callable
+from dataclasses import dataclass, field
+from pathlib import Path
+
+from pymavlink import mavutil
+
+from avoidd.errors import LinkError
+from avoidd.mavlink import codec as mav
+from avoidd.mavlink.signing import wall_timestamp
+from avoidd.mavlink.transport import ReceiveCallback, Transport, create_transport
+from avoidd.mavlink.url import parse_connection
+
+logger = logging.getLogger(__name__)
+
+FLAVOURS = ("ardupilot", "px4")
+AttitudeFn = Callable[[float], tuple[float, float, float]]
+"""Given seconds since boot: roll, pitch, yaw in radians."""
+
+
+def default_attitude(t_s: float) -> tuple[float, float, float]:
+    """A gentle, smooth sway, so that interpolation is testable: roll, pitch, yaw (rad)."""
+    return (
+        0.20 * math.sin(1.3 * t_s),
+        0.10 * math.cos(0.7 * t_s),
+        math.remainder(0.5 * t_s, math.tau),
+    )
+
+
+@dataclass
+class Recorded:
+    """One message the mock decoded."""
+
+    received_ns: int
+    message: mav.Message
+
+
+class PtyTransport:
+    """The autopilot's end of a pty; the other end appears at ``link_path`` (a symlink)."""
+
+    def __init__(self, link_path: Path, on_receive: ReceiveCallback) -> None:
+        self.link_path = link_path
+        self._on_receive = on_receive
+        self._master: int | None = None
+        self._slave: int | None = None
+
+    @property
+    def connected(self) -> bool:
+        """Whether the pty exists."""
+        return self._master is not None
+
+    async def open(self) -> None:
+        """Create the pty and its symlink."""
+        master, slave = pty.openpty()
+        tty.setraw(slave)  # no echo, no line discipline: a clean byte pipe
+        os.set_blocking(master, False)
+        # Keeping our copy of the slave open means the master never reads EIO while the other
+        # side is between opens.
+        self._master, self._slave = master, slave
+        with contextlib.suppress(FileNotFoundError):
+            self.link_path.unlink()
+        self.link_path.symlink_to(os.ttyname(slave))
+        asyncio.get_running_loop().add_reader(master, self._readable)
+
+    def _readable(self) -> None:
+        if self._master is None:
+            return
+        try:
+            data = os.read(self._master, 4096)
+        except (BlockingIOError, OSError):
+            return
+        if data:
+            self._on_receive(data)
+
+    def send(self, data: bytes) -> bool:
+        """Write bytes to the serial line (False when they could not all be written)."""
+        if self._master is None:
+            return False
+        try:
+            return os.write(self._master, data) == len(data)
+        except OSError:
+            return False
+
+    async def close(self) -> None:
+        """Close the pty and remove the symlink."""
+        if self._master is not None:
+            asyncio.get_running_loop().remove_reader(self._master)
+        for fd in (self._master, self._slave):
+            if fd is not None:
+                with contextlib.suppress(OSError):
+                    os.close(fd)
+        self._master = self._slave = None
+        with contextlib.suppress(FileNotFoundError):
+            self.link_path.unlink()
+
+
+def _mode_fields(flavour: str, vehicle_type: int, mode: str, armed: bool) -> tuple[int, int]:
+    """HEARTBEAT base_mode and custom_mode for a named flight mode."""
+    armed_flag = mav.MAV_MODE_FLAG_SAFETY_ARMED if armed else 0
+    if flavour == "px4":
+        if mode not in mavutil.px4_map:
+            raise ValueError(f"unknown PX4 mode '{mode}'; one of {', '.join(mavutil.px4_map)}")
+        base, main, sub = mavutil.px4_map[mode]
+        return base | armed_flag, (main << 16) | (sub << 24)
+    table = mavutil.mode_mapping_byname(vehicle_type) or {}
+    if mode not in table:
+        raise ValueError(f"unknown ArduPilot mode '{mode}'; one of {', '.join(table)}")
+    return mav.MAV_MODE_FLAG_CUSTOM_MODE_ENABLED | armed_flag, int(table[mode])
+
+
+@dataclass
+class MockAutopilot:
+    """A scriptable autopilot.
+
+    Attributes:
+        flavour: "ardupilot" or "px4".
+        system_id: Its system id.
+        vehicle_type: MAV_TYPE it reports.
+        mode: Flight mode name (ArduPilot's or PX4's spelling).
+        armed: Armed state.
+        key: Signing key; when set it signs everything and ignores unsigned messages.
+        attitude: The attitude it reports over time.
+        utc: Whether SYSTEM_TIME carries a UTC time (as with a GPS fix).
+        refuse: Message names whose stream requests it answers with MAV_RESULT_UNSUPPORTED.
+        acknowledge: Whether it answers commands at all.
+        fixed_streams: Streams at fixed rates (msg name -> Hz), sent whether asked or not.
+        rangefinder_m: Distance its downward rangefinder reports.
+    """
+
+    flavour: str = "ardupilot"
+    system_id: int = 1
+    vehicle_type: int = mav.MAV_TYPE_QUADROTOR
+    mode: str = ""
+    armed: bool = False
+    key: bytes | None = None
+    attitude: AttitudeFn = default_attitude
+    utc: bool = True
+    refuse: set[str] = field(default_factory=set)
+    acknowledge: bool = True
+    fixed_streams: dict[str, float] = field(default_factory=dict)
+    rangefinder_m: float = 1.5
+    recorded: list[Recorded] = field(default_factory=list)
+    streams: dict[int, float] = field(default_factory=dict)
+    counts: Counter[str] = field(default_factory=Counter)
+    sent: Counter[str] = field(default_factory=Counter)
+
+    def __post_init__(self) -> None:
+        if self.flavour not in FLAVOURS:
+            raise ValueError(f"flavour must be one of {FLAVOURS}")
+        if not self.mode:
+            self.mode = "POSCTL" if self.flavour == "px4" else "STABILIZE"
+        _mode_fields(self.flavour, self.vehicle_type, self.mode, self.armed)
+        self.codec = mav.Codec(self.system_id, mav.MAV_COMP_ID_AUTOPILOT1)
+        if self.key is not None:
+            self.codec.enable_signing(self.key, wall_timestamp(), lambda _msg_id: False)
+        self.boot_ns = time.monotonic_ns()
+        self.transport: Transport | PtyTransport | None = None
+        self._task: asyncio.Task[None] | None = None
+        self._due_s: dict[int, float] = {}
+        for name, hz in self.fixed_streams.items():
+            self.streams[mav.message_id(name)] = 1.0 / hz
+
+    # --- what it sends -----------------------------------------------------------------------
+
+    def boot_ms(self) -> int:
+        """Milliseconds since this autopilot 'booted'."""
+        return (time.monotonic_ns() - self.boot_ns) // 1_000_000
+
+    def heartbeat(self) -> mav.Message:
+        """Its HEARTBEAT for the current mode and armed state."""
+        base_mode, custom_mode = _mode_fields(
+            self.flavour, self.vehicle_type, self.mode, self.armed
+        )
+        autopilot = (
+            mav.MAV_AUTOPILOT_PX4 if self.flavour == "px4" else mav.MAV_AUTOPILOT_ARDUPILOTMEGA
+        )
+        status = mav.MAV_STATE_ACTIVE if self.armed else mav.MAV_STATE_STANDBY
+        return self.codec.build(
+            "HEARTBEAT", self.vehicle_type, autopilot, base_mode, custom_mode, status
+        )
+
+    def stream_message(self, msg_id: int) -> mav.Message | None:
+        """The current value of a streamable message, or None for ones it cannot produce."""
+        t_ms = self.boot_ms()
+        t_s = t_ms / 1000.0
+        name = mav.message_name(msg_id)
+        if name == "ATTITUDE":
+            roll, pitch, yaw = self.attitude(t_s)
+            return self.codec.build("ATTITUDE", t_ms, roll, pitch, yaw, 0.0, 0.0, 0.0)
+        if name == "LOCAL_POSITION_NED":
+            return self.codec.build("LOCAL_POSITION_NED", t_ms, 0.0, 0.0, -1.5, 0.0, 0.0, 0.0)
+        if name == "DISTANCE_SENSOR":
+            return self.codec.build(
+                "DISTANCE_SENSOR",
+                t_ms,
+                10,
+                4000,
+                round(self.rangefinder_m * 100),
+                0,  # MAV_DISTANCE_SENSOR_LASER
+                0,
+                mav.MAV_SENSOR_ROTATION_PITCH_270,
+                0,
+            )
+        if name == "SYSTEM_TIME":
+            unix_us = time.time_ns() // 1000 if self.utc else 0
+            return self.codec.build("SYSTEM_TIME", unix_us, t_ms)
+        return None
+
+    def send(self, message: mav.Message) -> None:
+        """Pack and send one message now."""
+        if self.transport is not None and self.transport.send(self.codec.pack(message)):
+            self.sent[message.get_type()] += 1
+
+    # --- what it hears -----------------------------------------------------------------------
+
+    def of_type(self, kind: str) -> list[mav.Message]:
+        """Every recorded message of one type, oldest first."""
+        return [r.message for r in self.recorded if r.message.get_type() == kind]
+
+    def _on_bytes(self, data: bytes) -> None:
+        now_ns = time.monotonic_ns()
+        for message in self.codec.decode(data):
+            self.recorded.append(Recorded(now_ns, message))
+            self.counts[message.get_type()] += 1
+            if message.get_type() == "COMMAND_LONG":
+                self._on_command(message)
+
+    def _on_command(self, message: mav.Message) -> None:
+        if message.target_system not in (0, self.system_id) or message.target_component not in (
+            0,
+            mav.MAV_COMP_ID_AUTOPILOT1,
+        ):
+            return
+        result = mav.MAV_RESULT_UNSUPPORTED
+        if message.command == mav.MAV_CMD_SET_MESSAGE_INTERVAL:
+            msg_id = int(message.param1)
+            interval_us = message.param2
+            name = mav.message_name(msg_id)
+            if name not in self.refuse and self.stream_message(msg_id) is not None:
+                result = mav.MAV_RESULT_ACCEPTED
+                if interval_us < 0:
+                    self.streams.pop(msg_id, None)
+                else:
+                    self.streams[msg_id] = max(interval_us, 1000.0) / 1e6
+                    self._due_s[msg_id] = time.monotonic()
+        if self.acknowledge:
+            self.send(
+                self.codec.build(
+                    "COMMAND_ACK",
+                    message.command,
+                    result,
+                    0,
+                    0,
+                    message.get_srcSystem(),
+                    message.get_srcComponent(),
+                )
+            )
+
+    # --- running -----------------------------------------------------------------------------
+
+    async def start(self, connection: str) -> None:
+        """Open the link and start sending.
+
+        Args:
+            connection: ``udpin:``/``udpout:``/``tcpin:``/``tcp:`` as for avoidd, or
+                ``pty:PATH`` to create a pty whose serial end is linked at PATH.
+        """
+        if connection.startswith("pty:"):
+            self.transport = PtyTransport(Path(connection.removeprefix("pty:")), self._on_bytes)
+        else:
+            self.transport = create_transport(parse_connection(connection), self._on_bytes)
+        await self.transport.open()
+        self._task = asyncio.create_task(self._run(), name="mock-autopilot")
+
+    async def _run(self) -> None:
+        next_heartbeat_s = time.monotonic()
+        while True:
+            now_s = time.monotonic()
+            if now_s >= next_heartbeat_s:
+                self.send(self.heartbeat())
+                next_heartbeat_s = now_s + 1.0
+            for msg_id, interval_s in list(self.streams.items()):
+                due_s = self._due_s.setdefault(msg_id, now_s)
+                if now_s - due_s > 0.5:
+                    due_s = now_s  # far behind: do not burst to catch up
+                while due_s <= now_s:
+                    message = self.stream_message(msg_id)
+                    if message is not None:
+                        self.send(message)
+                    due_s += interval_s
+                self._due_s[msg_id] = due_s
+            await asyncio.sleep(0.002)
+
+    async def stop(self) -> None:
+        """Stop sending and close the link."""
+        if self._task is not None:
+            self._task.cancel()
+            with contextlib.suppress(asyncio.CancelledError):
+                await self._task
+            self._task = None
+        if self.transport is not None:
+            await self.transport.close()
+            self.transport = None
+
+
+async def serve(autopilot: MockAutopilot, connection: str, duration_s: float | None) -> None:
+    """Run a mock autopilot until cancelled or for ``duration_s``, then log what it heard."""
+    try:
+        await autopilot.start(connection)
+    except (LinkError, OSError) as exc:
+        raise LinkError(f"mock autopilot on {connection}: {exc}") from exc
+    logger.info(
+        "mock %s autopilot, system %d, mode %s, on %s",
+        autopilot.flavour,
+        autopilot.system_id,
+        autopilot.mode,
+        connection,
+    )
+    try:
+        if duration_s is None:
+            await asyncio.Event().wait()
+        else:
+            await asyncio.sleep(duration_s)
+    finally:
+        await autopilot.stop()
+        logger.info("mock autopilot heard %s", dict(autopilot.counts))

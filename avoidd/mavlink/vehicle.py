@@ -1,0 +1,280 @@
+"""What avoidd knows of its vehicle: identity, mode, link state, attitude, position, clocks.
+
+:class:`Vehicle` is fed every decoded message of the link. It adopts the first autopilot it hears
+(or the configured system id), ignores every other system, and keeps asking the autopilot for the
+streams it needs until each request is acknowledged.
+"""
+
+from __future__ import annotations
+
+import asyncio
+import logging
+import time
+from collections import Counter
+from dataclasses import dataclass
+from typing import Protocol
+
+from avoidd.config import MavlinkConfig
+from avoidd.mavlink import codec as mav
+from avoidd.mavlink.attitude import Attitude, AttitudeHistory
+from avoidd.mavlink.clock import ClockSync
+from avoidd.mavlink.link import MavLink
+from avoidd.mavlink.modes import FlightMode, decode_mode
+
+logger = logging.getLogger(__name__)
+
+DEFAULT_SYSTEM_ID = 1
+_REQUEST_RETRY_S = 1.0
+_NOT_AUTOPILOTS = {mav.MAV_TYPE_GCS, mav.MAV_TYPE_ONBOARD_CONTROLLER}
+
+
+class Announce(Protocol):
+    """Reports an operator-visible event; ``key`` names its subject for coalescing."""
+
+    def __call__(self, severity: int, text: str, key: str | None = None) -> None:
+        """Report one event."""
+
+
+@dataclass(frozen=True)
+class LocalPosition:
+    """LOCAL_POSITION_NED, on avoidd's clock."""
+
+    t_ns: int
+    north_m: float
+    east_m: float
+    down_m: float
+    vn_m_s: float
+    ve_m_s: float
+    vd_m_s: float
+
+
+@dataclass(frozen=True)
+class Rangefinder:
+    """The latest downward DISTANCE_SENSOR reading, on avoidd's clock."""
+
+    t_ns: int
+    distance_m: float
+
+
+@dataclass
+class StreamRequest:
+    """One message stream avoidd asks for."""
+
+    name: str
+    msg_id: int
+    interval_us: int
+    acked: bool = False
+    refused: bool = False
+    attempts: int = 0
+
+
+class Vehicle:
+    """Tracks the autopilot on one link.
+
+    Args:
+        link: The link (messages are subscribed here; requests are sent on it).
+        config: The MAVLink configuration.
+        announce: Called with (severity, text) for operator-visible events.
+    """
+
+    def __init__(self, link: MavLink, config: MavlinkConfig, announce: Announce) -> None:
+        self._link = link
+        self._config = config
+        self._announce = announce
+        self.system_id: int | None = config.fixed_system_id
+        self.component_id = config.autopilot_component_id
+        self.mode: FlightMode | None = None
+        self.last_heartbeat_ns: int | None = None
+        self.link_up = False
+        self.clock = ClockSync()
+        self.attitude = AttitudeHistory()
+        self.position: LocalPosition | None = None
+        self.rangefinder: Rangefinder | None = None
+        self.ignored: Counter[int] = Counter()
+        self.requests = [
+            StreamRequest(name, mav.message_id(name), round(1e6 / hz))
+            for name, hz in (
+                ("ATTITUDE", config.streams.attitude_hz),
+                ("LOCAL_POSITION_NED", config.streams.local_position_hz),
+                ("DISTANCE_SENSOR", config.streams.distance_sensor_hz),
+                ("SYSTEM_TIME", config.streams.system_time_hz),
+            )
+            if hz > 0
+        ]
+        self._pending: StreamRequest | None = None
+        self._pending_sent_s = 0.0
+        link.codec.system_id = self.system_id or DEFAULT_SYSTEM_ID
+        link.subscribe(self.handle)
+
+    # --- incoming ----------------------------------------------------------------------------
+
+    def handle(self, message: mav.Message, received_ns: int) -> None:
+        """Take one decoded message of the link."""
+        source = message.get_srcSystem()
+        kind = message.get_type()
+        if self.system_id is None:
+            if not self._is_autopilot_heartbeat(message):
+                return
+            self.system_id = source
+            self._link.codec.system_id = source
+            logger.info("MAVLink: adopted vehicle system %d", source)
+        if source != self.system_id:
+            self.ignored[source] += 1
+            return
+        if message.get_srcComponent() != self.component_id:
+            return
+        handler = getattr(self, f"_on_{kind.lower()}", None)
+        if handler is not None:
+            handler(message, received_ns)
+
+    def _is_autopilot_heartbeat(self, message: mav.Message) -> bool:
+        return bool(
+            message.get_type() == "HEARTBEAT"
+            and message.get_srcComponent() == self.component_id
+            and message.autopilot != mav.MAV_AUTOPILOT_INVALID
+            and message.type not in _NOT_AUTOPILOTS
+        )
+
+    def _on_heartbeat(self, message: mav.Message, received_ns: int) -> None:
+        if not self._is_autopilot_heartbeat(message):
+            return
+        mode = decode_mode(message.autopilot, message.type, message.base_mode, message.custom_mode)
+        if mode != self.mode:
+            previous = self.mode
+            if previous is None or previous.name != mode.name:
+                logger.info("vehicle %d: %s mode %s", self.system_id, mode.autopilot, mode.name)
+            if previous is not None and previous.armed != mode.armed:
+                logger.info("vehicle %d: %s", self.system_id, "armed" if mode.armed else "disarmed")
+            self.mode = mode
+        self.last_heartbeat_ns = received_ns
+        if not self.link_up:
+            self.link_up = True
+            for request in self.requests:
+                request.acked = request.refused = False
+                request.attempts = 0
+            self._pending = None
+            logger.warning(
+                "MAVLink link up: %s system %d, mode %s, %s",
+                mode.autopilot,
+                self.system_id,
+                mode.name,
+                "armed" if mode.armed else "disarmed",
+            )
+            self._announce(
+                mav.MAV_SEVERITY_INFO, f"avoidd: link up, {mode.autopilot} {mode.name}", "link"
+            )
+
+    def _on_attitude(self, message: mav.Message, received_ns: int) -> None:
+        self.clock.observe_boot_ms(message.time_boot_ms, received_ns)
+        t_ns = self.clock.to_local_ns(message.time_boot_ms)
+        assert t_ns is not None
+        self.attitude.add(Attitude(t_ns, message.roll, message.pitch, message.yaw))
+
+    def _on_local_position_ned(self, message: mav.Message, received_ns: int) -> None:
+        self.clock.observe_boot_ms(message.time_boot_ms, received_ns)
+        t_ns = self.clock.to_local_ns(message.time_boot_ms)
+        assert t_ns is not None
+        m = message
+        self.position = LocalPosition(t_ns, m.x, m.y, m.z, m.vx, m.vy, m.vz)
+
+    def _on_distance_sensor(self, message: mav.Message, received_ns: int) -> None:
+        if message.orientation != mav.MAV_SENSOR_ROTATION_PITCH_270:
+            return
+        self.clock.observe_boot_ms(message.time_boot_ms, received_ns)
+        t_ns = self.clock.to_local_ns(message.time_boot_ms)
+        assert t_ns is not None
+        if message.min_distance <= message.current_distance <= message.max_distance:
+            self.rangefinder = Rangefinder(t_ns, message.current_distance / 100.0)
+
+    def _on_system_time(self, message: mav.Message, received_ns: int) -> None:
+        self.clock.observe_system_time(message.time_unix_usec, message.time_boot_ms, received_ns)
+
+    def _on_command_ack(self, message: mav.Message, received_ns: int) -> None:
+        request = self._pending
+        if request is None or message.command != mav.MAV_CMD_SET_MESSAGE_INTERVAL:
+            return
+        if message.target_system not in (0, self._link.codec.system_id):
+            return
+        self._pending = None
+        if message.result == mav.MAV_RESULT_ACCEPTED:
+            request.acked = True
+            logger.info(
+                "vehicle %d: streams %s every %d us",
+                self.system_id,
+                request.name,
+                request.interval_us,
+            )
+        else:
+            request.refused = True
+            logger.warning(
+                "vehicle %d: refused to stream %s (MAV_RESULT %d)",
+                self.system_id,
+                request.name,
+                message.result,
+            )
+
+    # --- queries -----------------------------------------------------------------------------
+
+    def attitude_at(self, t_ns: int) -> Attitude | None:
+        """Vehicle attitude at a local monotonic time (None when not known well enough)."""
+        return self.attitude.at(t_ns)
+
+    def time_usec(self, local_ns: int) -> int:
+        """``time_usec`` for a message about an event at ``local_ns`` (see :class:`ClockSync`)."""
+        return self.clock.time_usec(local_ns)
+
+    @property
+    def streams_acknowledged(self) -> bool:
+        """Whether every requested stream was acknowledged (or refused) since the link came up."""
+        return all(r.acked or r.refused for r in self.requests)
+
+    # --- periodic ----------------------------------------------------------------------------
+
+    def tick(self, now_ns: int) -> None:
+        """Update link state and (re)send stream requests; call a few times per second."""
+        timeout_ns = int(self._config.link_timeout_s * 1e9)
+        if self.link_up and (
+            self.last_heartbeat_ns is None or now_ns - self.last_heartbeat_ns > timeout_ns
+        ):
+            self.link_up = False
+            logger.error(
+                "MAVLink link down: no heartbeat from system %s for %.1f s",
+                self.system_id,
+                self._config.link_timeout_s,
+            )
+            self._announce(mav.MAV_SEVERITY_WARNING, "avoidd: link down", "link")
+        if self.link_up:
+            self._request_streams(now_ns / 1e9)
+
+    def _request_streams(self, now_s: float) -> None:
+        if self._pending is not None and now_s - self._pending_sent_s < _REQUEST_RETRY_S:
+            return
+        # Round robin over the unanswered requests, one outstanding at a time: COMMAND_ACK does
+        # not say which message interval it answers.
+        waiting = [r for r in self.requests if not (r.acked or r.refused)]
+        if not waiting or self.system_id is None:
+            self._pending = None
+            return
+        after = self.requests.index(self._pending) if self._pending is not None else -1
+        request = next((r for r in waiting if self.requests.index(r) > after), waiting[0])
+        request.attempts += 1
+        if request.attempts > 1 and request.attempts % 5 == 1:
+            logger.warning(
+                "vehicle %d: no answer to the %s stream request after %d tries",
+                self.system_id,
+                request.name,
+                request.attempts - 1,
+            )
+        self._pending = request
+        self._pending_sent_s = now_s
+        self._link.send(
+            self._link.codec.set_message_interval(
+                self.system_id, self.component_id, request.msg_id, request.interval_us
+            )
+        )
+
+    async def run(self, period_s: float = 0.1) -> None:
+        """Call :meth:`tick` forever."""
+        while True:
+            self.tick(time.monotonic_ns())
+            await asyncio.sleep(period_s)
