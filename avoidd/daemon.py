@@ -247,7 +247,8 @@ class Daemon:
                 key, self._timestamps.start(), allowed.__contains__, signing.link_id
             )
         self.link = MavLink(mavlink.link, self._codec)
-        self.vehicle: Vehicle | None = None
+        self._announcer: _Announcer | None = None
+        self.vehicle = Vehicle(self.link, mavlink, self._announce)
         self._stale: set[str] = set()
         self._started_ns = 0
 
@@ -282,7 +283,7 @@ class Daemon:
             for h in self.config.heads
         ]
         spec = self.config.mavlink.link
-        self.vehicle = Vehicle(self.link, self.config.mavlink, announcer)
+        self._announcer = announcer
         try:
             await self.link.open()
         except AvoiddError as exc:
@@ -340,6 +341,11 @@ class Daemon:
         logger.info("avoidd stopped; MAVLink %s", self.link.counters())
         return code
 
+    def _announce(self, severity: int, text: str, key: str | None = None) -> None:
+        """Report an event as STATUSTEXT (dropped before :meth:`run` has started)."""
+        if self._announcer is not None:
+            self._announcer(severity, text, key)
+
     async def _signing_loop(self) -> None:
         while True:
             await asyncio.sleep(_SIGNING_KEEP_S)
@@ -357,7 +363,6 @@ class Daemon:
         next_s = time.monotonic()
         while True:
             scan = self._current_scan()
-            assert self.vehicle is not None
             if scan is None:
                 distances = unknown_cm()
                 time_usec = self.vehicle.time_usec(time.monotonic_ns())
@@ -462,7 +467,7 @@ class Daemon:
         """One phrase on the link: vehicle state and error counters."""
         vehicle = self.vehicle
         link = self.link
-        if vehicle is None or not vehicle.link_up or vehicle.mode is None:
+        if not vehicle.link_up or vehicle.mode is None:
             state = "link down"
         else:
             mode = vehicle.mode

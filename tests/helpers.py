@@ -47,6 +47,7 @@ def synthetic_config(
     heads: list[dict[str, Any]] | None = None,
     pipeline: dict[str, Any] | None = None,
     rate_hz: float = 15.0,
+    mavlink: dict[str, Any] | None = None,
 ) -> Path:
     """A complete config with one synthetic head (or the given heads) and the given link."""
     calibration = write_rectified_calibration(folder, rig)
@@ -66,6 +67,7 @@ def synthetic_config(
                 "min_distance_cm": 20,
                 "max_distance_cm": 2000,
             },
+            **(mavlink or {}),
         },
         "pipeline": pipeline or {"max_age_ms": 400, "log_interval_s": 1.0},
     }
@@ -89,10 +91,12 @@ class MavlinkPeer:
         self._mav = dialect.MAVLink(None, srcSystem=1, srcComponent=1)
         self._mav.robust_parsing = True
         self.raw_first_bytes: list[int] = []
+        self.raw: list[bytes] = []
 
     def feed(self, data: bytes) -> None:
         if data:
             self.raw_first_bytes.append(data[0])
+            self.raw.append(data)
         for message in self._mav.parse_buffer(data) or []:
             if message.get_type() == "BAD_DATA":
                 self.parse_errors += 1

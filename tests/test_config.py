@@ -225,6 +225,8 @@ def test_run_with_bad_config_exits_before_touching_hardware(tmp_path: Path) -> N
         ("udpout:[::1]:14550", LinkSpec("udpout", "::1", 14550)),
         ("/dev/ttyAMA0,921600", LinkSpec("serial", device="/dev/ttyAMA0", baud=921600)),
         ("/dev/ttyACM0", LinkSpec("serial", device="/dev/ttyACM0", baud=115200)),
+        ("tcpin:127.0.0.1:5760", LinkSpec("tcpin", "127.0.0.1", 5760)),
+        ("serial:/run/fc/ttyAP,57600", LinkSpec("serial", device="/run/fc/ttyAP", baud=57600)),
     ],
 )
 def test_connection_strings(text: str, spec: LinkSpec) -> None:
@@ -242,6 +244,7 @@ def test_connection_strings(text: str, spec: LinkSpec) -> None:
         ("udpout:[::1:14550", "IPv6 host needs brackets"),
         ("/dev/ttyS0,12345", "unsupported baud rate 12345"),
         ("/dev/ttyS0,fast", "is not a number"),
+        ("serial:relative/tty,57600", "serial:/absolute/path"),
     ],
 )
 def test_bad_connection_strings(text: str, fragment: str) -> None:

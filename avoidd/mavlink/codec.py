@@ -172,6 +172,38 @@ class Codec:
             0.0,
         )
 
+    def distance_sensor(
+        self,
+        time_boot_ms: int,
+        min_cm: int,
+        max_cm: int,
+        current_cm: int,
+        orientation: int,
+        horizontal_fov_rad: float = 0.0,
+        vertical_fov_rad: float = 0.0,
+        quaternion: tuple[float, float, float, float] = (0.0, 0.0, 0.0, 0.0),
+        signal_quality: int = 0,
+        sensor_id: int = 0,
+    ) -> Message:
+        """A DISTANCE_SENSOR (covariance unknown, sensor type unknown).
+
+        ``signal_quality`` is 0 for unknown, else 1 (worst) to 100 (best).
+        """
+        return self._mav.distance_sensor_encode(
+            time_boot_ms,
+            min_cm,
+            max_cm,
+            current_cm,
+            MAV_DISTANCE_SENSOR_UNKNOWN,
+            sensor_id,
+            orientation,
+            255,  # covariance unknown
+            horizontal_fov_rad,
+            vertical_fov_rad,
+            list(quaternion),
+            signal_quality,
+        )
+
     def build(self, name: str, *fields: Any) -> Message:
         """Build any message of the dialect by name and fields (used by the mock autopilot)."""
         encoder = getattr(self._mav, f"{name.lower()}_encode")

@@ -209,16 +209,13 @@ class MockAutopilot:
         if name == "LOCAL_POSITION_NED":
             return self.codec.build("LOCAL_POSITION_NED", t_ms, 0.0, 0.0, -1.5, 0.0, 0.0, 0.0)
         if name == "DISTANCE_SENSOR":
-            return self.codec.build(
-                "DISTANCE_SENSOR",
+            return self.codec.distance_sensor(
                 t_ms,
                 10,
                 4000,
                 round(self.rangefinder_m * 100),
-                0,  # MAV_DISTANCE_SENSOR_LASER
-                0,
                 mav.MAV_SENSOR_ROTATION_PITCH_270,
-                0,
+                signal_quality=100,
             )
         if name == "SYSTEM_TIME":
             unix_us = time.time_ns() // 1000 if self.utc else 0

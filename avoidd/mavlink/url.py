@@ -48,7 +48,8 @@ class LinkSpec:
 
     def __str__(self) -> str:
         if self.kind == "serial":
-            return f"{self.device},{self.baud}"
+            prefix = "" if self.device.startswith("/dev/") else "serial:"
+            return f"{prefix}{self.device},{self.baud}"
         host = f"[{self.host}]" if ":" in self.host else self.host
         return f"{self.kind}:{host}:{self.port}"
 
@@ -58,7 +59,8 @@ def parse_connection(text: str) -> LinkSpec:
 
     Args:
         text: ``udpout:HOST:PORT``, ``udpin:HOST:PORT``, ``tcp:HOST:PORT``, ``tcpin:HOST:PORT`` or
-            ``/dev/ttyX[,BAUD]`` (IPv6 hosts in brackets, e.g. ``udpout:[::1]:14550``).
+            ``/dev/ttyX[,BAUD]`` or ``serial:/absolute/path[,BAUD]`` (IPv6 hosts in brackets,
+            e.g. ``udpout:[::1]:14550``).
 
     Returns:
         The parsed specification.
@@ -67,8 +69,11 @@ def parse_connection(text: str) -> LinkSpec:
         ValueError: The string is malformed; the message says what a valid one looks like.
     """
     text = text.strip()
-    if text.startswith("/dev/") or text.startswith("serial:"):
-        return _parse_serial(text.removeprefix("serial:"))
+    if text.startswith("/dev/"):
+        return _parse_serial(text, "/dev/")
+    if text.startswith("serial:"):
+        # Any absolute path, e.g. a udev or pty symlink: serial:/run/fc/ttyACM,115200
+        return _parse_serial(text.removeprefix("serial:"), "/")
     scheme, sep, rest = text.partition(":")
     kinds: dict[str, LinkKind] = {
         "udpout": "udpout",
@@ -107,10 +112,12 @@ def _split_host_port(text: str, rest: str) -> tuple[str, int]:
     return host, int(port_text)
 
 
-def _parse_serial(text: str) -> LinkSpec:
+def _parse_serial(text: str, prefix: str) -> LinkSpec:
     device, _, baud_text = text.partition(",")
-    if not device.startswith("/dev/") or len(device) <= len("/dev/"):
-        raise ValueError(f"'{text}': a serial link is /dev/ttyX or /dev/ttyX,BAUD")
+    if not device.startswith(prefix) or len(device) <= len(prefix):
+        raise ValueError(
+            f"'{text}': a serial link is /dev/ttyX[,BAUD] or serial:/absolute/path[,BAUD]"
+        )
     if not baud_text:
         return LinkSpec(kind="serial", device=device, baud=DEFAULT_BAUD)
     if not baud_text.isdigit():

@@ -1,0 +1,217 @@
+"""Pure parts of the MAVLink side: mode decoding, clock sync, attitude history, signing state."""
+
+from __future__ import annotations
+
+import math
+from pathlib import Path
+
+import pytest
+
+from avoidd.config import MavlinkConfig
+from avoidd.errors import ConfigError
+from avoidd.mavlink import codec as mav
+from avoidd.mavlink.attitude import Attitude, AttitudeHistory
+from avoidd.mavlink.clock import ClockSync
+from avoidd.mavlink.link import MavLink
+from avoidd.mavlink.mock_autopilot import _mode_fields
+from avoidd.mavlink.modes import decode_mode
+from avoidd.mavlink.signing import (
+    EPOCH_2015_S,
+    LEAD_S,
+    UNITS_PER_S,
+    TimestampStore,
+    load_key,
+    parse_key,
+    wall_timestamp,
+)
+from avoidd.mavlink.vehicle import Vehicle
+
+COPTER = mav.MAV_TYPE_QUADROTOR
+ROVER = 10  # MAV_TYPE_GROUND_ROVER
+PLANE = 1  # MAV_TYPE_FIXED_WING
+
+
+@pytest.mark.parametrize(
+    ("vehicle_type", "custom_mode", "name", "guided"),
+    [
+        (COPTER, 0, "STABILIZE", False),
+        (COPTER, 4, "GUIDED", True),
+        (COPTER, 5, "LOITER", False),
+        (COPTER, 20, "GUIDED_NOGPS", True),
+        (PLANE, 15, "GUIDED", True),
+        (PLANE, 10, "AUTO", False),
+        (ROVER, 15, "GUIDED", True),
+        (ROVER, 4, "HOLD", False),
+        (COPTER, 250, "MODE 250", False),
+    ],
+)
+def test_ardupilot_modes_by_vehicle_type(
+    vehicle_type: int, custom_mode: int, name: str, guided: bool
+) -> None:
+    base = mav.MAV_MODE_FLAG_CUSTOM_MODE_ENABLED | mav.MAV_MODE_FLAG_SAFETY_ARMED
+    mode = decode_mode(mav.MAV_AUTOPILOT_ARDUPILOTMEGA, vehicle_type, base, custom_mode)
+    assert (mode.autopilot, mode.name, mode.guided, mode.armed) == ("ArduPilot", name, guided, True)
+
+
+@pytest.mark.parametrize(
+    ("main", "sub", "name", "guided"),
+    [
+        (1, 0, "MANUAL", False),
+        (3, 0, "POSCTL", False),
+        (6, 0, "OFFBOARD", True),
+        (4, 4, "MISSION", False),
+        (4, 5, "RTL", False),
+        (4, 6, "LAND", False),
+        (9, 0, f"MODE {9 << 16}", False),
+    ],
+)
+def test_px4_modes_from_main_and_sub_mode(main: int, sub: int, name: str, guided: bool) -> None:
+    custom = (main << 16) | (sub << 24)
+    mode = decode_mode(mav.MAV_AUTOPILOT_PX4, COPTER, mav.MAV_MODE_FLAG_CUSTOM_MODE_ENABLED, custom)
+    assert (mode.autopilot, mode.name, mode.guided, mode.armed) == ("PX4", name, guided, False)
+
+
+@pytest.mark.parametrize(("flavour", "name"), [("ardupilot", "GUIDED"), ("px4", "OFFBOARD")])
+def test_the_mock_encodes_what_the_decoder_reads(flavour: str, name: str) -> None:
+    base, custom = _mode_fields(flavour, COPTER, name, armed=True)
+    autopilot = mav.MAV_AUTOPILOT_PX4 if flavour == "px4" else mav.MAV_AUTOPILOT_ARDUPILOTMEGA
+    mode = decode_mode(autopilot, COPTER, base, custom)
+    assert (mode.name, mode.armed, mode.guided) == (name, True, True)
+
+
+def test_clock_sync_takes_the_fastest_message_and_follows_a_reboot() -> None:
+    clock = ClockSync()
+    assert clock.time_usec(5_000_000_000) == 5_000_000  # unsynced: our own boot clock
+    true_offset_ns = 123_456_000_000  # autopilot booted 123.456 s before us... in its clock
+    delays_ns = [4_000_000, 900_000, 7_000_000, 2_500_000]
+    for i, delay_ns in enumerate(delays_ns):
+        local_send_ns = 10_000_000_000 + i * 20_000_000
+        boot_ms = (local_send_ns + true_offset_ns) // 1_000_000
+        clock.observe_boot_ms(boot_ms, local_send_ns + delay_ns)
+    assert clock.offset_ns is not None
+    assert true_offset_ns - 1_000_000 <= clock.offset_ns <= true_offset_ns
+    assert clock.offset_ns == true_offset_ns - 900_000  # the fastest message wins
+    # Without UTC: time since the autopilot booted.
+    assert clock.time_usec(11_000_000_000) == (11_000_000_000 + clock.offset_ns) // 1000
+    # With UTC from SYSTEM_TIME: UTC on the autopilot's own clock.
+    unix_at_boot_us = 1_790_000_000_000_000
+    clock.observe_system_time(unix_at_boot_us + 10_100_000 + 123_456_000, 133_556, 10_100_000_000)
+    assert (
+        abs(clock.time_usec(10_100_000_000) - (unix_at_boot_us + 10_100_000 + 123_456_000)) < 2000
+    )
+    # A reboot: the autopilot's clock restarts near zero; the estimate follows at once.
+    clock.observe_boot_ms(50, 20_000_000_000)
+    assert clock.offset_ns == 50_000_000 - 20_000_000_000
+    assert clock.time_usec(20_000_000_000) == 50_000  # UTC dropped until the next SYSTEM_TIME
+
+
+def test_clock_sync_ignores_a_utc_of_1970() -> None:
+    clock = ClockSync()
+    clock.observe_system_time(3_000_000, 3_000, 1_000_000_000)
+    assert clock.time_usec(1_000_000_000) == 3_000_000  # boot time, not a bogus epoch
+
+
+def test_attitude_interpolates_and_wraps_yaw() -> None:
+    history = AttitudeHistory(span_ns=1_000_000_000, max_gap_ns=100_000_000)
+    history.add(Attitude(0, 0.0, 0.1, math.pi - 0.1))
+    history.add(Attitude(20_000_000, 0.2, 0.3, -math.pi + 0.1))
+    mid = history.at(10_000_000)
+    assert mid is not None
+    assert mid.roll_rad == pytest.approx(0.1)
+    assert mid.pitch_rad == pytest.approx(0.2)
+    assert abs(abs(mid.yaw_rad) - math.pi) < 1e-9  # through +-180, not through 0
+    quarter = history.at(5_000_000)
+    assert quarter is not None and quarter.yaw_rad == pytest.approx(math.pi - 0.05)
+
+
+def test_attitude_refuses_what_it_cannot_vouch_for() -> None:
+    history = AttitudeHistory(span_ns=1_000_000_000, max_gap_ns=100_000_000)
+    assert history.at(0) is None
+    history.add(Attitude(1_000_000_000, 0.1, 0.0, 0.0))
+    history.add(Attitude(1_500_000_000, 0.3, 0.0, 0.0))  # a 500 ms gap: a lost link
+    assert history.at(900_000_000) is None  # before the history
+    assert history.at(1_200_000_000) is None  # inside a gap too wide to interpolate
+    held = history.at(1_550_000_000)
+    assert held is not None and held.roll_rad == 0.3  # just after the newest: held
+    assert history.at(1_700_000_000) is None  # too far after the newest
+    history.add(Attitude(1_250_000_000, 0.2, 0.0, 0.0))  # late arrival goes in its place
+    assert history.at(1_250_000_000) is not None
+    history.add(Attitude(2_600_000_000, 0.0, 0.0, 0.0))
+    assert len(history) == 1  # everything older than the span is gone
+
+
+def test_signing_keys_raw_hex_and_bad(tmp_path: Path) -> None:
+    raw = bytes(range(32))
+    assert parse_key(raw, "k") == raw
+    assert parse_key((raw.hex() + "\n").encode(), "k") == raw
+    with pytest.raises(ConfigError, match="sha256sum"):
+        parse_key(b"secret passphrase", "k")
+    path = tmp_path / "key"
+    path.write_text(raw.hex())
+    assert load_key(path, None) == raw
+    with pytest.raises(ConfigError, match="cannot read the signing key"):
+        load_key(tmp_path / "missing", None)
+
+
+def test_signing_key_from_systemd_credentials(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    (tmp_path / "mavlink-key").write_bytes(bytes(32))
+    monkeypatch.setenv("CREDENTIALS_DIRECTORY", str(tmp_path))
+    assert load_key(None, "mavlink-key") == bytes(32)
+    monkeypatch.delenv("CREDENTIALS_DIRECTORY")
+    with pytest.raises(ConfigError, match="LoadCredential"):
+        load_key(None, "mavlink-key")
+
+
+def test_signing_timestamp_survives_a_restart_without_a_clock(tmp_path: Path) -> None:
+    path = tmp_path / "signing-timestamp"
+    now_s = EPOCH_2015_S + 10 * 365 * 86400  # a board whose clock is right
+    store = TimestampStore(path)
+    first = store.start(now_s)
+    assert first == wall_timestamp(now_s)
+    used = first + 7 * UNITS_PER_S  # seven seconds of signing later...
+    store.keep(used)
+    # ...it reboots without a real-time clock: the wall clock says 1970.
+    restarted = TimestampStore(path).start(0.0)
+    assert restarted > used
+    assert restarted <= used + LEAD_S * UNITS_PER_S + UNITS_PER_S
+    assert wall_timestamp(0.0) == 0
+
+
+async def test_vehicle_adopts_the_autopilot_and_ignores_others() -> None:
+    config = MavlinkConfig(connection="udpout:127.0.0.1:9")
+    link = MavLink(config.link, mav.Codec(1, 196))
+    events: list[str] = []
+    vehicle = Vehicle(link, config, lambda severity, text, key=None: events.append(text))
+
+    def heartbeat(system: int, component: int, kind: int, autopilot: int, custom: int) -> None:
+        sender = mav.Codec(system, component)
+        base = mav.MAV_MODE_FLAG_CUSTOM_MODE_ENABLED
+        message = sender.build("HEARTBEAT", kind, autopilot, base, custom, 4)
+        for decoded in link.codec.decode(sender.pack(message)):
+            vehicle.handle(decoded, 1_000)
+
+    heartbeat(255, 190, mav.MAV_TYPE_GCS, mav.MAV_AUTOPILOT_INVALID, 0)  # a ground station
+    heartbeat(3, 196, mav.MAV_TYPE_ONBOARD_CONTROLLER, mav.MAV_AUTOPILOT_INVALID, 0)
+    assert vehicle.system_id is None and vehicle.mode is None
+    heartbeat(3, 1, COPTER, mav.MAV_AUTOPILOT_ARDUPILOTMEGA, 4)
+    assert vehicle.system_id == 3 and link.codec.system_id == 3
+    assert vehicle.mode is not None and vehicle.mode.name == "GUIDED"
+    assert vehicle.link_up and events == ["avoidd: link up, ArduPilot GUIDED"]
+    heartbeat(4, 1, COPTER, mav.MAV_AUTOPILOT_ARDUPILOTMEGA, 6)  # another vehicle
+    assert vehicle.system_id == 3 and vehicle.mode.name == "GUIDED"
+    assert vehicle.ignored[4] == 1
+    vehicle.tick(1_000 + 4_000_000_000)  # no heartbeat for 4 s > 3 s timeout
+    assert not vehicle.link_up and events[-1] == "avoidd: link down"
+
+
+async def test_vehicle_with_a_fixed_system_id_never_adopts_another() -> None:
+    config = MavlinkConfig(connection="udpout:127.0.0.1:9", system_id=9)
+    link = MavLink(config.link, mav.Codec(9, 196))
+    vehicle = Vehicle(link, config, lambda severity, text, key=None: None)
+    sender = mav.Codec(2, 1)
+    message = sender.build("HEARTBEAT", COPTER, mav.MAV_AUTOPILOT_PX4, 1, 6 << 16, 4)
+    for decoded in link.codec.decode(sender.pack(message)):
+        vehicle.handle(decoded, 0)
+    assert vehicle.system_id == 9 and vehicle.mode is None and vehicle.ignored[2] == 1
