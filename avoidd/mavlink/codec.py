@@ -218,7 +218,11 @@ class Codec:
             # The signing timestamp follows the wall clock when that is ahead, and otherwise
             # counts up by one per message, so it never goes back.
             signing.timestamp = max(signing.timestamp, wall_timestamp())
-        return bytes(message.pack(self._mav))
+        data = bytes(message.pack(self._mav))
+        # pymavlink's pack() stamps the current sequence number but only its send() advances
+        # it; receivers count lost packets from gaps in it, so advance it here.
+        self._mav.seq = (self._mav.seq + 1) % 256
+        return data
 
     def decode(self, data: bytes | Iterable[int]) -> list[Message]:
         """Decode every complete message in ``data`` (partial ones are kept for the next call).
