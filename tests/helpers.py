@@ -161,3 +161,19 @@ async def wait_for(predicate: Any, timeout_s: float, step_s: float = 0.02) -> bo
             return True
         await asyncio.sleep(step_s)
     return bool(predicate())
+
+
+async def start_daemon(config_path: Path) -> tuple[Any, asyncio.Task[int]]:
+    """Load a config and run the daemon in this event loop."""
+    from avoidd.cli import load_all
+    from avoidd.daemon import Daemon
+
+    config, calibrations = load_all(config_path)
+    daemon = Daemon(config, calibrations)
+    return daemon, asyncio.create_task(daemon.run())
+
+
+async def stop_daemon(daemon: Any, task: asyncio.Task[int]) -> None:
+    """Stop a daemon started by :func:`start_daemon` and check it exited cleanly."""
+    daemon.stop()
+    assert await asyncio.wait_for(task, timeout=10.0) == 0

@@ -13,25 +13,24 @@ from typing import Any
 
 import pytest
 
-from avoidd.cli import load_all
 from avoidd.daemon import Daemon
 from avoidd.mavlink import codec as mav
 from avoidd.mavlink.bench import LagMonitor
 from avoidd.mavlink.mock_autopilot import MockAutopilot
 from tests.helpers import REPO, free_udp_port, synthetic_config, wait_for
+from tests.helpers import start_daemon as start
+from tests.helpers import stop_daemon as stop
 
 KEY = bytes(range(1, 33))
 
 
-async def start(config: Path) -> tuple[Daemon, asyncio.Task[int]]:
-    loaded, calibrations = load_all(config)
-    daemon = Daemon(loaded, calibrations)
-    return daemon, asyncio.create_task(daemon.run())
-
-
-async def stop(daemon: Daemon, task: asyncio.Task[int]) -> None:
-    daemon.stop()
-    assert await asyncio.wait_for(task, timeout=10.0) == 0
+async def udp_pair(
+    tmp_path: Path, autopilot: MockAutopilot, **mavlink: Any
+) -> tuple[Daemon, asyncio.Task[int]]:
+    """The mock autopilot listening on UDP and the daemon sending to it."""
+    port = free_udp_port()
+    await autopilot.start(f"udpin:127.0.0.1:{port}")
+    return await start(synthetic_config(tmp_path, f"udpout:127.0.0.1:{port}", mavlink=mavlink))
 
 
 def free_tcp_port() -> int:
@@ -110,9 +109,7 @@ async def test_discovery_modes_and_stream_requests(
 
 async def test_attitude_history_and_clocks_match_the_autopilot(tmp_path: Path) -> None:
     autopilot = MockAutopilot(system_id=7)
-    port = free_udp_port()
-    await autopilot.start(f"udpin:127.0.0.1:{port}")
-    daemon, task = await start(synthetic_config(tmp_path, f"udpout:127.0.0.1:{port}"))
+    daemon, task = await udp_pair(tmp_path, autopilot)
     try:
         vehicle = daemon.vehicle
         assert vehicle is not None
@@ -148,9 +145,7 @@ async def test_attitude_history_and_clocks_match_the_autopilot(tmp_path: Path) -
 async def test_time_usec_without_utc_is_autopilot_boot_time(tmp_path: Path) -> None:
     autopilot = MockAutopilot(system_id=7, utc=False)
     autopilot.boot_ns -= 3_600_000_000_000  # booted an hour before us
-    port = free_udp_port()
-    await autopilot.start(f"udpin:127.0.0.1:{port}")
-    daemon, task = await start(synthetic_config(tmp_path, f"udpout:127.0.0.1:{port}"))
+    daemon, task = await udp_pair(tmp_path, autopilot)
     try:
         assert await wait_for(lambda: daemon.received["SYSTEM_TIME"] >= 1, 10.0)
         await asyncio.sleep(0.5)
@@ -163,9 +158,7 @@ async def test_time_usec_without_utc_is_autopilot_boot_time(tmp_path: Path) -> N
 
 async def test_refused_and_unanswered_stream_requests(tmp_path: Path) -> None:
     autopilot = MockAutopilot(system_id=7, refuse={"DISTANCE_SENSOR"})
-    port = free_udp_port()
-    await autopilot.start(f"udpin:127.0.0.1:{port}")
-    daemon, task = await start(synthetic_config(tmp_path, f"udpout:127.0.0.1:{port}"))
+    daemon, task = await udp_pair(tmp_path, autopilot)
     try:
         vehicle = daemon.vehicle
         assert vehicle is not None
@@ -189,10 +182,7 @@ async def test_refused_and_unanswered_stream_requests(tmp_path: Path) -> None:
 
 async def test_link_down_and_up_are_reported(tmp_path: Path) -> None:
     autopilot = MockAutopilot(system_id=7)
-    port = free_udp_port()
-    await autopilot.start(f"udpin:127.0.0.1:{port}")
-    config = synthetic_config(tmp_path, f"udpout:127.0.0.1:{port}", mavlink={"link_timeout_s": 1.0})
-    daemon, task = await start(config)
+    daemon, task = await udp_pair(tmp_path, autopilot, link_timeout_s=1.0)
     try:
         vehicle = daemon.vehicle
         assert vehicle is not None
@@ -320,17 +310,8 @@ async def test_signing(tmp_path: Path, peer_key: str) -> None:
     stamp = tmp_path / "signing-timestamp"
     autopilot_key = {"same": KEY, "wrong": bytes(32), "none": None}[peer_key]
     autopilot = MockAutopilot(system_id=5, mode="GUIDED", key=autopilot_key)
-    port = free_udp_port()
-    await autopilot.start(f"udpin:127.0.0.1:{port}")
-    config = synthetic_config(
-        tmp_path,
-        f"udpout:127.0.0.1:{port}",
-        mavlink={
-            "system_id": "auto",
-            "signing": {"key_file": str(key_file), "timestamp_file": str(stamp)},
-        },
-    )
-    daemon, task = await start(config)
+    signing = {"key_file": str(key_file), "timestamp_file": str(stamp)}
+    daemon, task = await udp_pair(tmp_path, autopilot, system_id="auto", signing=signing)
     try:
         vehicle = daemon.vehicle
         assert vehicle is not None

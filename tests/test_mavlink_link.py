@@ -11,20 +11,15 @@ from pathlib import Path
 
 import pytest
 
-from avoidd.cli import load_all
-from avoidd.daemon import Daemon
-from tests.helpers import MavlinkPeer, free_udp_port, open_udp_peer, synthetic_config, wait_for
-
-
-async def start_daemon(config_path: Path) -> tuple[Daemon, asyncio.Task[int]]:
-    config, calibrations = load_all(config_path)
-    daemon = Daemon(config, calibrations)
-    return daemon, asyncio.create_task(daemon.run())
-
-
-async def stop_daemon(daemon: Daemon, task: asyncio.Task[int]) -> None:
-    daemon.stop()
-    assert await asyncio.wait_for(task, timeout=10.0) == 0
+from tests.helpers import (
+    MavlinkPeer,
+    free_udp_port,
+    open_udp_peer,
+    start_daemon,
+    stop_daemon,
+    synthetic_config,
+    wait_for,
+)
 
 
 async def test_udpout_messages_decode_field_by_field(tmp_path: Path) -> None:

@@ -15,6 +15,7 @@ import sys
 import time
 from typing import Any
 
+from avoidd.aio import cancel_task
 from avoidd.config import MavlinkConfig, StreamsConfig
 from avoidd.mavlink.codec import Codec
 from avoidd.mavlink.link import MavLink
@@ -97,9 +98,7 @@ async def run_bench(rate_hz: float, seconds: float) -> dict[str, Any]:
         cpu_s, wall_s = _cpu_s() - cpu0, time.perf_counter() - wall0
         count = sum(link.received.values()) - count0
     finally:
-        lag_task.cancel()
-        with contextlib.suppress(asyncio.CancelledError):
-            await lag_task
+        await cancel_task(lag_task)
         with contextlib.suppress(ProcessLookupError):
             mock.terminate()
         await mock.wait()

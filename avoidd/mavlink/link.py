@@ -9,12 +9,12 @@ is saturated.
 from __future__ import annotations
 
 import asyncio
-import contextlib
 import logging
 import time
 from collections import Counter, deque
 from collections.abc import Callable
 
+from avoidd.aio import cancel_task
 from avoidd.mavlink.codec import Codec, Message
 from avoidd.mavlink.transport import Transport, create_transport
 from avoidd.mavlink.url import LinkSpec
@@ -82,11 +82,8 @@ class MavLink:
 
     async def close(self) -> None:
         """Stop the sender and close the transport (queued messages are dropped)."""
-        if self._sender is not None:
-            self._sender.cancel()
-            with contextlib.suppress(asyncio.CancelledError):
-                await self._sender
-            self._sender = None
+        await cancel_task(self._sender)
+        self._sender = None
         await self.transport.close()
 
     def send(self, message: Message) -> None:

@@ -24,6 +24,7 @@ from pathlib import Path
 
 from pymavlink import mavutil
 
+from avoidd.aio import cancel_task
 from avoidd.errors import LinkError
 from avoidd.mavlink import codec as mav
 from avoidd.mavlink.signing import wall_timestamp
@@ -309,11 +310,8 @@ class MockAutopilot:
 
     async def stop(self) -> None:
         """Stop sending and close the link."""
-        if self._task is not None:
-            self._task.cancel()
-            with contextlib.suppress(asyncio.CancelledError):
-                await self._task
-            self._task = None
+        await cancel_task(self._task)
+        self._task = None
         if self.transport is not None:
             await self.transport.close()
             self.transport = None

@@ -11,6 +11,7 @@ import tty
 from collections.abc import Callable
 from typing import Any, Protocol
 
+from avoidd.aio import cancel_task
 from avoidd.errors import LinkError
 from avoidd.mavlink.url import STANDARD_BAUDS, LinkSpec
 
@@ -113,6 +114,25 @@ class _UdpTransport:
             self._transport = None
 
 
+def _write_stream(writer: asyncio.StreamWriter | None, data: bytes) -> bool:
+    """Write to a TCP stream unless it is gone or its buffer is full (then drop: False)."""
+    if writer is None or writer.is_closing():
+        return False
+    if writer.transport.get_write_buffer_size() > _MAX_WRITE_BUFFER:
+        return False
+    writer.write(data)
+    return True
+
+
+async def _pump(reader: asyncio.StreamReader, on_receive: ReceiveCallback, spec: LinkSpec) -> None:
+    """Hand every chunk read from a TCP stream to ``on_receive`` until it closes or fails."""
+    try:
+        while data := await reader.read(4096):
+            on_receive(data)
+    except OSError as exc:
+        logger.debug("MAVLink %s: read failed (%s)", spec, exc)
+
+
 class _TcpClient:
     """TCP client that keeps reconnecting with backoff while the peer is away."""
 
@@ -146,10 +166,7 @@ class _TcpClient:
             self._writer = writer
             logger.info("MAVLink %s: connected", self._spec)
             try:
-                while data := await reader.read(4096):
-                    self._on_receive(data)
-            except OSError as exc:
-                logger.debug("MAVLink %s: read failed (%s)", self._spec, exc)
+                await _pump(reader, self._on_receive, self._spec)
             finally:
                 self._writer = None
                 writer.close()
@@ -159,20 +176,11 @@ class _TcpClient:
             logger.warning("MAVLink %s: connection lost; reconnecting", self._spec)
 
     def send(self, data: bytes) -> bool:
-        writer = self._writer
-        if writer is None or writer.is_closing():
-            return False
-        if writer.transport.get_write_buffer_size() > _MAX_WRITE_BUFFER:
-            return False
-        writer.write(data)
-        return True
+        return _write_stream(self._writer, data)
 
     async def close(self) -> None:
-        if self._task is not None:
-            self._task.cancel()
-            with contextlib.suppress(asyncio.CancelledError):
-                await self._task
-            self._task = None
+        await cancel_task(self._task)
+        self._task = None
         if self._writer is not None:
             self._writer.close()
             self._writer = None
@@ -305,11 +313,8 @@ class _Serial:
         return True
 
     async def close(self) -> None:
-        if self._task is not None:
-            self._task.cancel()
-            with contextlib.suppress(asyncio.CancelledError):
-                await self._task
-            self._task = None
+        await cancel_task(self._task)
+        self._task = None
         fd, self._fd = self._fd, None
         if fd is not None:
             loop = asyncio.get_running_loop()
@@ -356,23 +361,14 @@ class _TcpServer:
         self.clients += 1
         logger.info("MAVLink %s: client connected", self._spec)
         try:
-            while data := await reader.read(4096):
-                self._on_receive(data)
-        except OSError as exc:
-            logger.debug("MAVLink %s: read failed (%s)", self._spec, exc)
+            await _pump(reader, self._on_receive, self._spec)
         finally:
             if self._writer is writer:
                 self._writer = None
             writer.close()
 
     def send(self, data: bytes) -> bool:
-        writer = self._writer
-        if writer is None or writer.is_closing():
-            return False
-        if writer.transport.get_write_buffer_size() > _MAX_WRITE_BUFFER:
-            return False
-        writer.write(data)
-        return True
+        return _write_stream(self._writer, data)
 
     async def close(self) -> None:
         if self._writer is not None:
