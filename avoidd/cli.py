@@ -1,4 +1,4 @@
-"""The ``avoidd`` command line: run, check-config, replay, mock-autopilot, bench-link."""
+"""The ``avoidd`` command line: run, check-config, replay, eval, mock-autopilot, bench-link."""
 
 from __future__ import annotations
 
@@ -147,6 +147,20 @@ def _cmd_mock_autopilot(args: argparse.Namespace) -> int:
     return EXIT_OK
 
 
+def _cmd_eval(args: argparse.Namespace) -> int:
+    import json
+
+    from avoidd.evaluation.run import evaluate, format_runs
+
+    runs = evaluate(args.path, args.matcher or ["sgbm"], args.max_scenes)
+    print(format_runs(runs))
+    if args.json is not None:
+        payload = [run.as_json() for run in runs]
+        document = payload[0] if len(payload) == 1 else payload
+        args.json.write_text(json.dumps(document, indent=2) + "\n")
+    return EXIT_OK
+
+
 def _cmd_bench_link(args: argparse.Namespace) -> int:
     from avoidd.mavlink.bench import format_report, run_bench
 
@@ -185,6 +199,19 @@ def build_parser() -> argparse.ArgumentParser:
     rep.add_argument("--head", help="head to replay (default: the first)")
     rep.add_argument("--out", type=Path, required=True, help="output .jsonl file")
     rep.set_defaults(handler=_cmd_replay)
+
+    ev = commands.add_parser(
+        "eval", help="score matchers on stereo data with ground truth (Middlebury, KITTI)"
+    )
+    ev.add_argument("path", type=Path, help="a scene folder, a dataset folder, or a folder of them")
+    ev.add_argument(
+        "--matcher",
+        action="append",
+        help="sgbm (default), sgbm-nopad, sad, sad-pad, opencv-sgbm; repeat to compare",
+    )
+    ev.add_argument("--max-scenes", type=int, help="stop after N scenes")
+    ev.add_argument("--json", type=Path, help="also write the scores as JSON")
+    ev.set_defaults(handler=_cmd_eval)
 
     mock = commands.add_parser(
         "mock-autopilot", help="run a mock ArduPilot/PX4 autopilot (for tests and sitl/)"

@@ -112,6 +112,11 @@ class HeadPipeline:
             disparity = refine_subpixel(left, right, disparity, self._post.refine_window_px)
         disparity = median_smooth(disparity, self._post.median_size)
         lap("post")
+        band = self._matcher.num_disparities
+        if band:
+            # The left border band cannot show an object nearer than f*B/x at column x (its
+            # match would be outside the right image), so nothing there is vouched for.
+            disparity[:, :band] = np.nan
         depth = depth_from_disparity(disparity, self.rig)
         lap("depth")
         scan = sector_scan(

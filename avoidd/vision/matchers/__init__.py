@@ -2,14 +2,15 @@
 
 from __future__ import annotations
 
-from avoidd.config import SgbmConfig
+from avoidd.config import MatcherConfig, SadConfig
 from avoidd.vision.matchers.base import Matcher
+from avoidd.vision.matchers.sad import SadMatcher
 from avoidd.vision.matchers.sgbm import SgbmMatcher
 
-__all__ = ["Matcher", "SgbmMatcher", "create_matcher"]
+__all__ = ["Matcher", "SadMatcher", "SgbmMatcher", "create_matcher"]
 
 
-def create_matcher(config: SgbmConfig) -> Matcher:
+def create_matcher(config: MatcherConfig) -> Matcher:
     """Build the matcher a head's config asks for.
 
     Args:
@@ -18,4 +19,6 @@ def create_matcher(config: SgbmConfig) -> Matcher:
     Returns:
         A ready matcher.
     """
+    if isinstance(config, SadConfig):
+        return SadMatcher(config)
     return SgbmMatcher(config)

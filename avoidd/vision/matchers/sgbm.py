@@ -7,6 +7,7 @@ import numpy as np
 
 from avoidd.config import SgbmConfig
 from avoidd.types import FloatArray, Image
+from avoidd.vision.matchers.border import crop_padded, pad_left
 
 _MODES = {
     "sgbm": cv2.StereoSGBM_MODE_SGBM,
@@ -20,19 +21,20 @@ class SgbmMatcher:
     """OpenCV StereoSGBM on grey images; invalid pixels become NaN.
 
     Args:
-        config: Matcher parameters; ``p1``/``p2`` default to 8 and 32 times block_size squared.
+        config: Matcher parameters; ``p1``/``p2`` default to 8 and 64 times block_size squared.
     """
 
     def __init__(self, config: SgbmConfig) -> None:
         area = config.block_size * config.block_size
         self._min_disparity = config.min_disparity
         self._num_disparities = config.num_disparities
+        self._pad = config.num_disparities if config.pad_left else 0
         self._sgbm = cv2.StereoSGBM.create(
             minDisparity=config.min_disparity,
             numDisparities=config.num_disparities,
             blockSize=config.block_size,
             P1=config.p1 if config.p1 is not None else 8 * area,
-            P2=config.p2 if config.p2 is not None else 32 * area,
+            P2=config.p2 if config.p2 is not None else 64 * area,
             disp12MaxDiff=config.disp12_max_diff,
             preFilterCap=config.pre_filter_cap,
             uniquenessRatio=config.uniqueness_ratio,
@@ -48,7 +50,9 @@ class SgbmMatcher:
 
     def compute(self, left: Image, right: Image) -> FloatArray:
         """Match a rectified grey pair; see :class:`avoidd.vision.matchers.base.Matcher`."""
+        if self._pad:
+            left, right = pad_left(left, self._pad), pad_left(right, self._pad)
         raw = np.asarray(self._sgbm.compute(left, right), dtype=np.int16)
         disparity = raw.astype(np.float32) * np.float32(1.0 / 16.0)
         disparity[raw < self._min_disparity * 16] = np.nan
-        return disparity
+        return crop_padded(disparity, self._pad) if self._pad else disparity

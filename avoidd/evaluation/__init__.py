@@ -1,0 +1,1 @@
+"""Measuring matchers against ground truth: dataset readers, metrics and the eval runner."""

@@ -1,0 +1,165 @@
+"""``avoidd eval``: run matchers over datasets with ground truth and score them."""
+
+from __future__ import annotations
+
+import time
+from collections.abc import Callable
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+import cv2
+import numpy as np
+
+from avoidd.config import PostprocessConfig, SadConfig, SgbmConfig
+from avoidd.errors import ConfigError
+from avoidd.evaluation.datasets import Scene, find_scenes
+from avoidd.evaluation.metrics import Scores, mean_scores, score
+from avoidd.evaluation.progress import Progress
+from avoidd.types import FloatArray, Image
+from avoidd.vision.matchers import Matcher, create_matcher
+from avoidd.vision.postprocess import median_smooth, refine_subpixel
+from avoidd.vision.preprocess import to_grey
+
+Compute = Callable[[Image, Image], FloatArray]
+"""Grey left and right views in, disparity out (NaN invalid)."""
+
+
+def _product(matcher: Matcher) -> Compute:
+    """A matcher followed by avoidd's default post-processing, as the pipeline runs it."""
+    post = PostprocessConfig()
+
+    def compute(left: Image, right: Image) -> FloatArray:
+        disparity = matcher.compute(left, right)
+        if post.subpixel_refine:
+            disparity = refine_subpixel(left, right, disparity, post.refine_window_px)
+        return median_smooth(disparity, post.median_size)
+
+    return compute
+
+
+def _opencv_sgbm(num_disparities: int) -> Compute:
+    """Bare OpenCV SGBM with the parameters most users start from (the baseline to beat)."""
+    block = 5
+    sgbm = cv2.StereoSGBM.create(
+        minDisparity=0,
+        numDisparities=num_disparities,
+        blockSize=block,
+        P1=8 * block * block,
+        P2=32 * block * block,
+        uniquenessRatio=10,
+        speckleWindowSize=100,
+        speckleRange=2,
+        mode=cv2.StereoSGBM_MODE_SGBM_3WAY,
+    )
+
+    def compute(left: Image, right: Image) -> FloatArray:
+        raw = np.asarray(sgbm.compute(left, right), dtype=np.int16)
+        disparity = raw.astype(np.float32) / np.float32(16.0)
+        disparity[raw < 0] = np.nan
+        return disparity
+
+    return compute
+
+
+MATCHERS: dict[str, tuple[str, Callable[[int], Compute]]] = {
+    "sgbm": (
+        "avoidd's default: SGBM as configured by default, sub-pixel refinement, 5x5 median",
+        lambda n: _product(create_matcher(SgbmConfig(num_disparities=n))),
+    ),
+    "sgbm-nopad": (
+        "as sgbm, leaving the left border band unmatched (pad_left false)",
+        lambda n: _product(create_matcher(SgbmConfig(num_disparities=n, pad_left=False))),
+    ),
+    "sad": (
+        "SAD block matching (OpenCV StereoBM, 11x11) with avoidd's post-processing",
+        lambda n: _product(create_matcher(SadConfig(kind="sad", num_disparities=n))),
+    ),
+    "sad-pad": (
+        "as sad, also matching the left border band",
+        lambda n: _product(create_matcher(SadConfig(kind="sad", num_disparities=n, pad_left=True))),
+    ),
+    "opencv-sgbm": (
+        "baseline: bare OpenCV SGBM_3WAY, blockSize 5, P1 8*bs^2, P2 32*bs^2, uniqueness 10, "
+        "speckle 100/2",
+        _opencv_sgbm,
+    ),
+}
+
+
+@dataclass
+class Run:
+    """One matcher's results over the scenes."""
+
+    matcher: str
+    scenes: list[tuple[str, Scores]] = field(default_factory=list)
+
+    @property
+    def mean(self) -> Scores:
+        """Mean of each score over the scenes."""
+        return mean_scores([s for _, s in self.scenes])
+
+    def as_json(self) -> dict[str, Any]:
+        """``{"matcher", "scenes": [{"scene", scores...}], "mean": {scores...}}``."""
+        return {
+            "matcher": self.matcher,
+            "scenes": [{"scene": name, **_rounded(s)} for name, s in self.scenes],
+            "mean": _rounded(self.mean),
+        }
+
+
+def _rounded(scores: Scores) -> dict[str, float | None]:
+    return {k: (round(v, 3) if v is not None else None) for k, v in scores.as_dict().items()}
+
+
+def evaluate(path: Path, matchers: list[str], max_scenes: int | None = None) -> list[Run]:
+    """Run each named matcher on every scene found under ``path``.
+
+    Raises:
+        ConfigError: Unknown matcher name, or no scene found.
+    """
+    unknown = [m for m in matchers if m not in MATCHERS]
+    if unknown:
+        raise ConfigError(
+            [f"--matcher {', '.join(unknown)}: unknown; use one of {', '.join(MATCHERS)}"]
+        )
+    scenes: list[Scene] = []
+    for scene in find_scenes(path):
+        scenes.append(scene)
+        if max_scenes is not None and len(scenes) >= max_scenes:
+            break
+    if not scenes:
+        raise ConfigError(
+            [f"{path}: no stereo scene with ground truth found (Middlebury or KITTI layout)"]
+        )
+    runs = [Run(name) for name in matchers]
+    progress = Progress(len(scenes) * len(matchers))
+    for scene in scenes:
+        left, right = to_grey(scene.left), to_grey(scene.right)
+        for run in runs:
+            compute = MATCHERS[run.matcher][1](scene.num_disparities)
+            started = time.perf_counter()
+            disparity = compute(left, right)
+            ms = (time.perf_counter() - started) * 1000.0
+            run.scenes.append((scene.name, score(disparity, scene.truth_px, scene.calib, ms)))
+            progress.step(f"{run.matcher} {scene.name}")
+    return runs
+
+
+def format_runs(runs: list[Run]) -> str:
+    """A table per matcher: one row per scene and the mean."""
+    lines: list[str] = []
+    header = (
+        f"{'scene':<30} {'bad1':>6} {'bad2':>6} {'bad4':>6} {'dens':>6} {'avgerr':>7} "
+        f"{'Z>10%':>6} {'ms':>7}"
+    )
+    for run in runs:
+        lines += [f"matcher {run.matcher}: {MATCHERS[run.matcher][0]}", header]
+        for name, s in [*run.scenes, ("MEAN", run.mean)]:
+            depth = f"{s.depth_bad10:6.1f}" if s.depth_bad10 is not None else f"{'-':>6}"
+            lines.append(
+                f"{name:<30} {s.bad1:6.1f} {s.bad2:6.1f} {s.bad4:6.1f} {s.density:6.1f} "
+                f"{s.avgerr:7.2f} {depth} {s.ms:7.1f}"
+            )
+        lines.append("")
+    return "\n".join(lines)

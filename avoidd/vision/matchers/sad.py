@@ -1,0 +1,49 @@
+"""SAD block matching through OpenCV's StereoBM (sum of absolute differences over a window)."""
+
+from __future__ import annotations
+
+import cv2
+import numpy as np
+
+from avoidd.config import SadConfig
+from avoidd.types import FloatArray, Image
+from avoidd.vision.matchers.border import crop_padded, pad_left
+
+_PREFILTERS = {
+    "xsobel": cv2.StereoBM_PREFILTER_XSOBEL,
+    "normalized_response": cv2.StereoBM_PREFILTER_NORMALIZED_RESPONSE,
+}
+
+
+class SadMatcher:
+    """OpenCV StereoBM on grey images; untextured, ambiguous and inconsistent pixels are NaN.
+
+    Args:
+        config: Matcher parameters.
+    """
+
+    def __init__(self, config: SadConfig) -> None:
+        self._num_disparities = config.num_disparities
+        self._pad = config.num_disparities if config.pad_left else 0
+        bm = cv2.StereoBM.create(config.num_disparities, config.block_size)
+        bm.setPreFilterType(_PREFILTERS[config.pre_filter])
+        bm.setTextureThreshold(config.texture_threshold)
+        bm.setUniquenessRatio(config.uniqueness_ratio)
+        bm.setSpeckleWindowSize(config.speckle_window_size)
+        bm.setSpeckleRange(config.speckle_range)
+        bm.setDisp12MaxDiff(config.disp12_max_diff)
+        self._bm = bm
+
+    @property
+    def num_disparities(self) -> int:
+        """Width of the disparity search range in pixels."""
+        return self._num_disparities
+
+    def compute(self, left: Image, right: Image) -> FloatArray:
+        """Match a rectified grey pair; see :class:`avoidd.vision.matchers.base.Matcher`."""
+        if self._pad:
+            left, right = pad_left(left, self._pad), pad_left(right, self._pad)
+        raw = np.asarray(self._bm.compute(left, right), dtype=np.int16)
+        disparity = raw.astype(np.float32) * np.float32(1.0 / 16.0)
+        disparity[raw < 0] = np.nan
+        return crop_padded(disparity, self._pad) if self._pad else disparity
