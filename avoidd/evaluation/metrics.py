@@ -54,8 +54,9 @@ def score(estimate: FloatArray, truth: FloatArray, calib: Calib | None, ms: floa
     bads = [100.0 * (total - int((error <= t).sum())) / total for t in THRESHOLDS_PX]
     depth_bad10 = None
     if calib is not None:
-        z_true = calib.focal_px * calib.baseline_m / (truth[have] + calib.doffs_px)
-        z_est = calib.focal_px * calib.baseline_m / (estimate[have] + calib.doffs_px)
+        with np.errstate(divide="ignore"):  # zero disparity (and doffs): infinitely far
+            z_true = calib.focal_px * calib.baseline_m / (truth[have] + calib.doffs_px)
+            z_est = calib.focal_px * calib.baseline_m / (estimate[have] + calib.doffs_px)
         good = np.abs(z_est - z_true) <= 0.10 * z_true
         depth_bad10 = 100.0 * (total - int(good.sum())) / total
     return Scores(
