@@ -218,6 +218,33 @@ class SadConfig(_Strict):
     pad_left: bool = False
 
 
+class CensusConfig(_Strict):
+    """Census transform + sum of Hamming distances (the paper's SHD matcher).
+
+    Attributes:
+        pattern: ``sparse5x5`` (8 samples on a 5x5 ring) or ``full5x5`` (24 bits).
+        aggregation_px: Side of the window the Hamming distances are summed over (11 in the
+            paper).
+        max_mean_distance: Drop a match whose mean Hamming distance per pixel exceeds this share
+            of the code's bits.
+        texture_window_px: Window of the texture test.
+        min_texture_std: Minimum grey-level standard deviation in that window; flatter pixels
+            are not matched (their census codes carry no information).
+        lr_max_diff_px: Left-right check: the right view's match must point back within this.
+        speckle_window_size: Islands of similar disparity smaller than this are dropped (0: off).
+    """
+
+    kind: Literal["census"]
+    num_disparities: Annotated[int, Field(ge=16, le=256), AfterValidator(_multiple_of_16)] = 64
+    pattern: Literal["sparse5x5", "full5x5"] = "sparse5x5"
+    aggregation_px: Annotated[int, Field(ge=3, le=31), AfterValidator(_odd)] = 11
+    max_mean_distance: float = Field(0.35, gt=0.0, le=1.0)
+    texture_window_px: Annotated[int, Field(ge=3, le=31), AfterValidator(_odd)] = 7
+    min_texture_std: float = Field(1.0, ge=0.0)
+    lr_max_diff_px: int = Field(1, ge=0)
+    speckle_window_size: int = Field(100, ge=0)
+
+
 def _matcher_kind(value: object) -> str:
     if isinstance(value, dict):
         return str(value.get("kind", "sgbm"))
@@ -225,7 +252,9 @@ def _matcher_kind(value: object) -> str:
 
 
 MatcherConfig = Annotated[
-    Annotated[SgbmConfig, Tag("sgbm")] | Annotated[SadConfig, Tag("sad")],
+    Annotated[SgbmConfig, Tag("sgbm")]
+    | Annotated[SadConfig, Tag("sad")]
+    | Annotated[CensusConfig, Tag("census")],
     Discriminator(_matcher_kind),
 ]
 """The ``matcher`` section of a head: one of the matchers, chosen by ``kind``."""

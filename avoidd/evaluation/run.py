@@ -11,7 +11,7 @@ from typing import Any
 import cv2
 import numpy as np
 
-from avoidd.config import PostprocessConfig, SadConfig, SgbmConfig
+from avoidd.config import CensusConfig, PostprocessConfig, SadConfig, SgbmConfig
 from avoidd.errors import ConfigError
 from avoidd.evaluation.datasets import Scene, find_scenes
 from avoidd.evaluation.metrics import Scores, mean_scores, score
@@ -78,6 +78,10 @@ MATCHERS: dict[str, tuple[str, Callable[[int], Compute]]] = {
     "sad-pad": (
         "as sad, also matching the left border band",
         lambda n: _product(create_matcher(SadConfig(kind="sad", num_disparities=n, pad_left=True))),
+    ),
+    "census": (
+        "census (5x5 sparse) + sum of Hamming distances over 11x11, avoidd's post-processing",
+        lambda n: _product(create_matcher(CensusConfig(kind="census", num_disparities=n))),
     ),
     "opencv-sgbm": (
         "baseline: bare OpenCV SGBM_3WAY, blockSize 5, P1 8*bs^2, P2 32*bs^2, uniqueness 10, "

@@ -2,12 +2,13 @@
 
 from __future__ import annotations
 
-from avoidd.config import MatcherConfig, SadConfig
+from avoidd.config import CensusConfig, MatcherConfig, SadConfig
 from avoidd.vision.matchers.base import Matcher
+from avoidd.vision.matchers.census import CensusMatcher
 from avoidd.vision.matchers.sad import SadMatcher
 from avoidd.vision.matchers.sgbm import SgbmMatcher
 
-__all__ = ["Matcher", "SadMatcher", "SgbmMatcher", "create_matcher"]
+__all__ = ["CensusMatcher", "Matcher", "SadMatcher", "SgbmMatcher", "create_matcher"]
 
 
 def create_matcher(config: MatcherConfig) -> Matcher:
@@ -21,4 +22,6 @@ def create_matcher(config: MatcherConfig) -> Matcher:
     """
     if isinstance(config, SadConfig):
         return SadMatcher(config)
+    if isinstance(config, CensusConfig):
+        return CensusMatcher(config)
     return SgbmMatcher(config)
