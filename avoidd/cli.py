@@ -1,4 +1,4 @@
-"""The ``avoidd`` command line: run, check-config, replay, eval, mock-autopilot, bench-link."""
+"""The ``avoidd`` command line: run, check-config, replay, eval, bench, mock-autopilot and more."""
 
 from __future__ import annotations
 
@@ -161,6 +161,22 @@ def _cmd_eval(args: argparse.Namespace) -> int:
     return EXIT_OK
 
 
+def _cmd_bench(args: argparse.Namespace) -> int:
+    import json
+
+    from avoidd.bench import DISPARITIES, RESOLUTIONS, format_bench, run_bench
+
+    resolutions = RESOLUTIONS[:2] if args.quick else RESOLUTIONS
+    disparities = DISPARITIES[:1] if args.quick else DISPARITIES
+    records = run_bench(
+        args.matcher or ["sgbm", "sad", "census"], resolutions, disparities, args.frames
+    )
+    print(format_bench(records))
+    if args.json is not None:
+        args.json.write_text(json.dumps(records, indent=2) + "\n")
+    return EXIT_OK
+
+
 def _cmd_bench_link(args: argparse.Namespace) -> int:
     from avoidd.mavlink.bench import format_report, run_bench
 
@@ -229,6 +245,15 @@ def build_parser() -> argparse.ArgumentParser:
     )
     mock.add_argument("--duration", type=float, help="stop after this many seconds")
     mock.set_defaults(handler=_cmd_mock_autopilot)
+
+    vb = commands.add_parser(
+        "bench", help="per-stage milliseconds of each matcher next to bare OpenCV SGBM"
+    )
+    vb.add_argument("--matcher", action="append", choices=["sgbm", "sad", "census"])
+    vb.add_argument("--frames", type=int, default=5, help="frames per configuration")
+    vb.add_argument("--quick", action="store_true", help="320x240 and 640x480, 64 disparities")
+    vb.add_argument("--json", type=Path, help="also write the figures as JSON")
+    vb.set_defaults(handler=_cmd_bench)
 
     bench = commands.add_parser(
         "bench-link", help="measure CPU for decoding a stream of incoming MAVLink"

@@ -264,3 +264,22 @@ def test_eval_on_middlebury_2001_and_2003(data_dir: Path) -> None:
         (run,) = evaluate(data_dir / dataset, ["sgbm"])
         assert run.mean.bad2 <= max_bad2, (dataset, run.mean)
         assert len(run.scenes) == (7 if dataset == "middlebury2001" else 2)
+
+
+def test_bench_reports_every_stage_and_the_opencv_ratio(tmp_path: Path) -> None:
+    from avoidd.bench import STAGES, run_bench
+
+    records = run_bench(["sgbm", "census"], ((320, 240),), (64,), frames=2)
+    assert len(records) == 4  # two matchers, single thread and all threads
+    assert {r["threads"] for r in records} == {1, cv2.getNumberOfCPUs()}
+    for record in records:
+        assert set(record["stages_ms"]) == set(STAGES)
+        assert all(v >= 0.0 for v in record["stages_ms"].values())
+        assert record["stages_ms"]["rectify"] > 0.0  # the bench calibration needs remapping
+        assert record["total_ms"] == pytest.approx(sum(record["stages_ms"].values()), abs=0.01)
+        assert record["match_vs_opencv"] == pytest.approx(
+            record["stages_ms"]["match"] / record["opencv_sgbm_ms"], rel=0.01
+        )
+    out = tmp_path / "bench.json"
+    assert main(["bench", "--matcher", "sad", "--quick", "--frames", "1", "--json", str(out)]) == 0
+    assert len(json.loads(out.read_text())) == 4  # two sizes x two thread settings
