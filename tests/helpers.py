@@ -177,3 +177,19 @@ async def stop_daemon(daemon: Any, task: asyncio.Task[int]) -> None:
     """Stop a daemon started by :func:`start_daemon` and check it exited cleanly."""
     daemon.stop()
     assert await asyncio.wait_for(task, timeout=10.0) == 0
+
+
+def noisy_grey_pair(scene: Any, rig: Any, seed: int, sigma: float) -> tuple[Any, Any, Any]:
+    """Render a synthetic scene and return its grey views with sensor noise, and the truth."""
+    import numpy as np
+
+    from avoidd.sources.scene import render_pair, to_uint8
+    from avoidd.vision.preprocess import to_grey
+
+    rendered = render_pair(scene, rig)
+    rng = np.random.default_rng(seed)
+    views = [
+        to_grey(to_uint8(view, rng.normal(0.0, sigma, view.shape).astype(np.float32)))
+        for view in (rendered.left, rendered.right)
+    ]
+    return views[0], views[1], rendered.truth

@@ -5,12 +5,13 @@ import numpy as np
 import pytest
 
 from avoidd.config import PostprocessConfig, SgbmConfig
-from avoidd.sources.scene import FIRST_OBSTACLE_ID, Box, Pole, Scene, render_pair, to_uint8
+from avoidd.sources.scene import FIRST_OBSTACLE_ID, Box, Pole, Scene
 from avoidd.types import RectifiedRig
 from avoidd.vision.depth import depth_from_disparity, disparity_from_depth
 from avoidd.vision.matchers import SgbmMatcher
 from avoidd.vision.postprocess import median_smooth, refine_subpixel
 from avoidd.vision.preprocess import to_grey
+from tests.helpers import noisy_grey_pair
 
 RIG = RectifiedRig(640, 480, 400.0, 400.0, 319.5, 239.5, 0.12, 0.0)
 
@@ -28,12 +29,7 @@ def test_depth_formula_with_doffs() -> None:
 
 
 def _pair(scene: Scene, seed: int) -> tuple[np.ndarray, np.ndarray, object]:
-    rendered = render_pair(scene, RIG)
-    rng = np.random.default_rng(seed)
-    noise = lambda: rng.normal(0, 1.5, rendered.left.shape).astype(np.float32)  # noqa: E731
-    left = to_grey(to_uint8(rendered.left, noise()))
-    right = to_grey(to_uint8(rendered.right, noise()))
-    return left, right, rendered.truth
+    return noisy_grey_pair(scene, RIG, seed, 1.5)
 
 
 @pytest.fixture(scope="module")

@@ -15,12 +15,12 @@ from avoidd.config import CensusConfig, SadConfig, SgbmConfig
 from avoidd.evaluation.datasets import Calib, find_scenes, read_pfm
 from avoidd.evaluation.metrics import score
 from avoidd.evaluation.run import evaluate
-from avoidd.sources.scene import Box, Pole, Scene, render_pair, to_uint8
+from avoidd.sources.scene import Box, Pole, Scene
 from avoidd.types import RectifiedRig
 from avoidd.vision.matchers import create_matcher
 from avoidd.vision.matchers.border import crop_padded
 from avoidd.vision.matchers.census import PATTERNS, census_transform, texture_mask
-from avoidd.vision.preprocess import to_grey
+from tests.helpers import noisy_grey_pair
 
 RIG = RectifiedRig(480, 360, 300.0, 300.0, 239.5, 179.5, 0.12, 0.0)
 NUM_DISPARITIES = 48
@@ -40,15 +40,8 @@ def textured_pair() -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         backdrop_m=30.0,
         seed=4,
     )
-    rendered = render_pair(scene, RIG)
-    rng = np.random.default_rng(2)
-    left = to_grey(
-        to_uint8(rendered.left, rng.normal(0, 1.0, rendered.left.shape).astype(np.float32))
-    )
-    right = to_grey(
-        to_uint8(rendered.right, rng.normal(0, 1.0, rendered.right.shape).astype(np.float32))
-    )
-    depth = rendered.truth.depth_m
+    left, right, ground_truth = noisy_grey_pair(scene, RIG, 2, 1.0)
+    depth = ground_truth.depth_m
     truth = np.where(np.isfinite(depth), RIG.fx * RIG.baseline_m / depth, np.nan).astype(np.float32)
     return left, right, truth
 

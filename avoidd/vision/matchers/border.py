@@ -29,3 +29,26 @@ def crop_padded(disparity_px: FloatArray, columns: int) -> FloatArray:
     x = np.arange(cropped.shape[1], dtype=np.float32)[None, :]
     cropped[cropped > x] = np.nan
     return cropped
+
+
+def run_opencv_matcher(
+    matcher: cv2.StereoMatcher, left: Image, right: Image, pad: int, min_disparity: int = 0
+) -> FloatArray:
+    """Run an OpenCV stereo matcher (fixed-point output, 1/16 px) with optional padding.
+
+    Args:
+        matcher: A StereoBM or StereoSGBM object.
+        left: Left grey view.
+        right: Right grey view.
+        pad: Columns of left padding (0: none); see :func:`pad_left`.
+        min_disparity: The matcher's minimum disparity (below it means invalid).
+
+    Returns:
+        Disparity in pixels, NaN where OpenCV found no valid match.
+    """
+    if pad:
+        left, right = pad_left(left, pad), pad_left(right, pad)
+    raw = np.asarray(matcher.compute(left, right), dtype=np.int16)
+    disparity = raw.astype(np.float32) * np.float32(1.0 / 16.0)
+    disparity[raw < min_disparity * 16] = np.nan
+    return crop_padded(disparity, pad) if pad else disparity

@@ -3,11 +3,10 @@
 from __future__ import annotations
 
 import cv2
-import numpy as np
 
 from avoidd.config import SadConfig
 from avoidd.types import FloatArray, Image
-from avoidd.vision.matchers.border import crop_padded, pad_left
+from avoidd.vision.matchers.border import run_opencv_matcher
 
 _PREFILTERS = {
     "xsobel": cv2.StereoBM_PREFILTER_XSOBEL,
@@ -41,9 +40,4 @@ class SadMatcher:
 
     def compute(self, left: Image, right: Image) -> FloatArray:
         """Match a rectified grey pair; see :class:`avoidd.vision.matchers.base.Matcher`."""
-        if self._pad:
-            left, right = pad_left(left, self._pad), pad_left(right, self._pad)
-        raw = np.asarray(self._bm.compute(left, right), dtype=np.int16)
-        disparity = raw.astype(np.float32) * np.float32(1.0 / 16.0)
-        disparity[raw < 0] = np.nan
-        return crop_padded(disparity, self._pad) if self._pad else disparity
+        return run_opencv_matcher(self._bm, left, right, self._pad, 0)
