@@ -287,6 +287,43 @@ class SectorsConfig(_Strict):
         return value
 
 
+class TextureConfig(_Strict):
+    """The paper's adaptive-threshold texture mask.
+
+    A pixel is textured when it differs from the mean (or median) of its ``window_px`` window by
+    at least ``offset`` grey levels, or has such a pixel within ``spread_px``; disparities of
+    untextured pixels are dropped rather than guessed.
+    """
+
+    method: Literal["mean", "median"] = "mean"
+    window_px: Annotated[int, Field(ge=3, le=31), AfterValidator(_odd)] = 7
+    offset: float = Field(2.0, ge=0.0, le=255.0)
+    spread_px: Annotated[int, Field(ge=1, le=31), AfterValidator(_odd)] = 5
+
+
+class PreprocessConfig(_Strict):
+    """Image preparation before matching, as the paper has it; every step off unless asked.
+
+    Attributes:
+        resize_scale: Scale both views (and the rig) by this factor before matching (1: off).
+        median_px: Median denoise window (0: off; 3, 5 or 7).
+        mean_px: Mean (box) denoise window (0: off; odd).
+        texture: Adaptive-threshold texture mask (None: off).
+    """
+
+    resize_scale: float = Field(1.0, ge=0.25, le=1.0)
+    median_px: Literal[0, 3, 5, 7] = 0
+    mean_px: Annotated[int, Field(ge=0, le=15)] = 0
+    texture: TextureConfig | None = None
+
+    @field_validator("mean_px")
+    @classmethod
+    def _mean_window(cls, value: int) -> int:
+        if value and value % 2 == 0:
+            raise ValueError(f"must be 0 or odd; use {value + 1}")
+        return value
+
+
 class PostprocessConfig(_Strict):
     """Disparity post-processing after any matcher.
 
@@ -319,6 +356,7 @@ class HeadConfig(_Strict):
     mount: MountConfig = MountConfig()
     source: SourceConfig
     matcher: MatcherConfig = SgbmConfig()
+    preprocess: PreprocessConfig = PreprocessConfig()
     postprocess: PostprocessConfig = PostprocessConfig()
     sectors: SectorsConfig = SectorsConfig()
 

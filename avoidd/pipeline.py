@@ -6,16 +6,23 @@ import time
 from dataclasses import dataclass, field
 
 import numpy as np
+import numpy.typing as npt
 
 from avoidd.config import HeadConfig
 from avoidd.errors import BrokenFrame
 from avoidd.perception.sectors import sector_scan
-from avoidd.types import FloatArray, Mount, RectifiedRig, SectorScan, StereoFrame
+from avoidd.types import FloatArray, Image, Mount, RectifiedRig, SectorScan, StereoFrame
 from avoidd.vision.calibration import Calibration
 from avoidd.vision.depth import depth_from_disparity
 from avoidd.vision.matchers import create_matcher
 from avoidd.vision.postprocess import median_smooth, refine_subpixel
-from avoidd.vision.preprocess import to_grey
+from avoidd.vision.preprocess import (
+    adaptive_texture_mask,
+    denoise,
+    resize,
+    scale_rig,
+    to_grey,
+)
 from avoidd.vision.rectify import rectify_pair
 
 STAGES = ("rectify", "preprocess", "match", "post", "depth", "sectors")
@@ -33,6 +40,8 @@ class HeadResult:
         depth_m: Depth map of the left view (NaN invalid).
         valid_fraction: Share of pixels with a valid disparity.
         timing_ms: Milliseconds per stage (see ``STAGES``).
+        steps_ms: Milliseconds of each preprocessing step (``preprocess.grey`` ...), part of
+            the ``preprocess`` stage.
     """
 
     head: str
@@ -42,6 +51,7 @@ class HeadResult:
     depth_m: FloatArray = field(repr=False)
     valid_fraction: float
     timing_ms: dict[str, float]
+    steps_ms: dict[str, float] = field(default_factory=dict)
 
 
 class HeadPipeline:
@@ -61,9 +71,42 @@ class HeadPipeline:
         )
         self._maps = calibration.maps
         self._matcher = create_matcher(head.matcher)
+        self._pre = head.preprocess
         self._post = head.postprocess
+        self.work_rig = scale_rig(self.rig, head.preprocess.resize_scale)
+        """The rig of the images the matcher sees (differs from ``rig`` when resizing)."""
         self._sectors = head.sectors
         self._max_range_m = max_range_m
+
+    def _preprocess(
+        self, left: Image, right: Image
+    ) -> tuple[Image, Image, npt.NDArray[np.bool_] | None, dict[str, float]]:
+        """Grey, resize, denoise, texture mask; returns the views, the mask and step timings."""
+        pre = self._pre
+        steps: dict[str, float] = {}
+        started = time.perf_counter()
+
+        def step(name: str) -> None:
+            nonlocal started
+            now = time.perf_counter()
+            steps[f"preprocess.{name}"] = (now - started) * 1000.0
+            started = now
+
+        left, right = to_grey(left), to_grey(right)
+        step("grey")
+        if pre.resize_scale != 1.0:
+            left, right = resize(left, pre.resize_scale), resize(right, pre.resize_scale)
+            step("resize")
+        if pre.median_px or pre.mean_px:
+            left = denoise(left, pre.median_px, pre.mean_px)
+            right = denoise(right, pre.median_px, pre.mean_px)
+            step("denoise")
+        texture = None
+        if pre.texture is not None:
+            t = pre.texture
+            texture = adaptive_texture_mask(left, t.method, t.window_px, t.offset, t.spread_px)
+            step("texture")
+        return left, right, texture, steps
 
     def check_frame(self, frame: StereoFrame) -> None:
         """Reject a frame whose size does not match the calibration.
@@ -104,24 +147,28 @@ class HeadPipeline:
 
         left, right = rectify_pair(frame.left, frame.right, self._maps)
         lap("rectify")
-        left, right = to_grey(left), to_grey(right)
+        left, right, texture, steps_ms = self._preprocess(left, right)
         lap("preprocess")
         disparity = self._matcher.compute(left, right)
         lap("match")
         if self._post.subpixel_refine:
             disparity = refine_subpixel(left, right, disparity, self._post.refine_window_px)
         disparity = median_smooth(disparity, self._post.median_size)
+        if texture is not None:
+            disparity[~texture] = np.nan  # untextured: not measured, never guessed
         lap("post")
         band = self._matcher.num_disparities
         if band:
             # The left border band cannot show an object nearer than f*B/x at column x (its
             # match would be outside the right image), so nothing there is vouched for.
             disparity[:, :band] = np.nan
-        depth = depth_from_disparity(disparity, self.rig)
+        depth = depth_from_disparity(disparity, self.work_rig)
         lap("depth")
         scan = sector_scan(
-            depth, self.rig, self.mount, self._sectors, self._max_range_m, frame.t_capture_ns
+            depth, self.work_rig, self.mount, self._sectors, self._max_range_m, frame.t_capture_ns
         )
         lap("sectors")
         valid = float(np.count_nonzero(~np.isnan(disparity))) / disparity.size
-        return HeadResult(self.name, frame.seq, frame.t_capture_ns, scan, depth, valid, timing)
+        return HeadResult(
+            self.name, frame.seq, frame.t_capture_ns, scan, depth, valid, timing, steps_ms
+        )

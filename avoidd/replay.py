@@ -128,6 +128,7 @@ def replay(
                 "sectors_cm": sectors_cm,
                 "valid_fraction": round(result.valid_fraction, 4),
                 "timing_ms": {k: round(v, 3) for k, v in timing.items()},
+                "preprocess_steps_ms": {k: round(v, 3) for k, v in result.steps_ms.items()},
             }
             if frame.truth is not None:
                 truth = nearest_obstacle(frame.truth, pipeline.mount, head.sectors.row_band)
