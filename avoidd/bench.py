@@ -20,6 +20,7 @@ import numpy as np
 from avoidd.config import (
     CensusConfig,
     HeadConfig,
+    HistogramConfig,
     MatcherConfig,
     MountConfig,
     PostprocessConfig,
@@ -97,6 +98,7 @@ def _head(matcher: MatcherConfig) -> HeadConfig:
         matcher=matcher,
         postprocess=PostprocessConfig(),
         sectors=SectorsConfig(),
+        histogram=HistogramConfig(),
     )
 
 

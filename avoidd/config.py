@@ -345,6 +345,20 @@ class PostprocessConfig(_Strict):
         return value
 
 
+class HistogramConfig(_Strict):
+    """The per-frame depth histogram (linearly spaced edges from ``min_m`` to ``max_m``)."""
+
+    min_m: float = Field(0.0, ge=0.0)
+    max_m: float = Field(20.0, gt=0.0, le=1000.0)
+    bins: int = Field(40, ge=1, le=1000)
+
+    @model_validator(mode="after")
+    def _range(self) -> HistogramConfig:
+        if self.max_m <= self.min_m:
+            raise ValueError("max_m must be greater than min_m")
+        return self
+
+
 _HEAD_NAME = re.compile(r"^[a-z][a-z0-9_-]{0,31}$")
 
 
@@ -359,6 +373,7 @@ class HeadConfig(_Strict):
     preprocess: PreprocessConfig = PreprocessConfig()
     postprocess: PostprocessConfig = PostprocessConfig()
     sectors: SectorsConfig = SectorsConfig()
+    histogram: HistogramConfig = HistogramConfig()
 
     @field_validator("name")
     @classmethod

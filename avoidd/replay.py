@@ -10,6 +10,9 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import IO, Any
 
+import numpy as np
+import numpy.typing as npt
+
 from avoidd.config import AppConfig, HeadConfig
 from avoidd.errors import BrokenFrame, ConfigError, SourceExhausted
 from avoidd.mavlink.codec import Codec
@@ -129,6 +132,7 @@ def replay(
                 "valid_fraction": round(result.valid_fraction, 4),
                 "timing_ms": {k: round(v, 3) for k, v in timing.items()},
                 "preprocess_steps_ms": {k: round(v, 3) for k, v in result.steps_ms.items()},
+                "depth_histogram": _histogram_json(result.histogram),
             }
             if frame.truth is not None:
                 truth = nearest_obstacle(frame.truth, pipeline.mount, head.sectors.row_band)
@@ -151,6 +155,15 @@ def replay(
         source.close()
     summary.stage_ms = {k: statistics.fmean(v) for k, v in totals.items() if v}
     return summary
+
+
+def _histogram_json(
+    histogram: tuple[npt.NDArray[np.float64], npt.NDArray[np.int64]] | None,
+) -> dict[str, list[float] | list[int]] | None:
+    if histogram is None:
+        return None
+    edges, counts = histogram
+    return {"edges_m": [round(float(e), 3) for e in edges], "counts": counts.tolist()}
 
 
 def format_summary(summary: ReplaySummary) -> str:

@@ -88,3 +88,26 @@ def test_pipeline_with_preprocessing_still_finds_the_obstacle(tmp_path: Path) ->
         error = abs(nearest["distance_m"] - truth["nearest_m"]) / truth["nearest_m"]
         assert error < 0.06, (nearest, truth)  # half resolution: one pixel is worth more
         assert round(nearest["bearing_deg"] / 5) == round(truth["nearest_bearing_deg"] / 5)
+
+
+def test_depth_histogram_counts_measured_depths_on_linear_edges() -> None:
+    from avoidd.vision.depth import depth_histogram
+
+    depth = np.array([[0.5, 1.2, 1.9, np.nan, np.inf, 25.0, 3.0]], dtype=np.float32)
+    edges, counts = depth_histogram(depth, 0.0, 4.0, 4)
+    np.testing.assert_allclose(edges, [0.0, 1.0, 2.0, 3.0, 4.0])
+    assert counts.tolist() == [1, 2, 0, 1]  # NaN, inf and 25 m left out; 3.0 in the last bin
+
+
+def test_replay_writes_the_depth_histogram(tmp_path: Path) -> None:
+    config = synthetic_config(tmp_path, "udpout:127.0.0.1:14550", source=SOURCE)
+    out = tmp_path / "replay.jsonl"
+    assert main(["replay", "--config", str(config), "--max-frames", "1", "--out", str(out)]) == 0
+    record = json.loads(out.read_text().splitlines()[0])
+    histogram = record["depth_histogram"]
+    assert len(histogram["edges_m"]) == 41 and len(histogram["counts"]) == 40  # defaults
+    assert histogram["edges_m"][0] == 0.0 and histogram["edges_m"][-1] == 20.0
+    # The box 3 m ahead fills the 2.5-3.5 m bins far beyond anything else that near.
+    near = sum(histogram["counts"][5:7])
+    assert near > 500 and near > sum(histogram["counts"][:5])
+    assert sum(histogram["counts"]) <= 320 * 240 * record["valid_fraction"] + 1

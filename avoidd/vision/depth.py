@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import numpy as np
+import numpy.typing as npt
 
 from avoidd.types import FloatArray, RectifiedRig
 
@@ -39,3 +40,20 @@ def disparity_from_depth(depth_m: FloatArray, rig: RectifiedRig) -> FloatArray:
     with np.errstate(divide="ignore"):
         disparity = np.float32(rig.fx * rig.baseline_m) / depth_m.astype(np.float32)
     return (disparity - np.float32(rig.doffs_px)).astype(np.float32)
+
+
+def depth_histogram(
+    depth_m: FloatArray, min_m: float, max_m: float, bins: int
+) -> tuple[npt.NDArray[np.float64], npt.NDArray[np.int64]]:
+    """Histogram of measured depths over linearly spaced edges, as the paper computes it.
+
+    Pixels without a measurement (NaN) and infinitely far ones are left out; depths outside
+    ``[min_m, max_m]`` are left out too.
+
+    Returns:
+        The ``bins + 1`` edges in metres and the ``bins`` counts.
+    """
+    edges = np.linspace(min_m, max_m, bins + 1)
+    finite = depth_m[np.isfinite(depth_m)]
+    counts, _ = np.histogram(finite, bins=edges)
+    return edges, counts.astype(np.int64)
