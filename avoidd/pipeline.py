@@ -13,7 +13,7 @@ from avoidd.errors import BrokenFrame
 from avoidd.perception.sectors import sector_scan
 from avoidd.types import FloatArray, Image, Mount, RectifiedRig, SectorScan, StereoFrame
 from avoidd.vision.calibration import Calibration
-from avoidd.vision.depth import depth_from_disparity, depth_histogram
+from avoidd.vision.depth import depth_from_disparity
 from avoidd.vision.matchers import create_matcher
 from avoidd.vision.postprocess import median_smooth, refine_subpixel
 from avoidd.vision.preprocess import (
@@ -40,7 +40,6 @@ class HeadResult:
         depth_m: Depth map of the left view (NaN invalid).
         valid_fraction: Share of pixels with a valid disparity.
         timing_ms: Milliseconds per stage (see ``STAGES``).
-        histogram: Edges (m) and counts of the measured depths (the band excluded).
         steps_ms: Milliseconds of each preprocessing step (``preprocess.grey`` ...), part of
             the ``preprocess`` stage.
     """
@@ -53,9 +52,6 @@ class HeadResult:
     valid_fraction: float
     timing_ms: dict[str, float]
     steps_ms: dict[str, float] = field(default_factory=dict)
-    histogram: tuple[npt.NDArray[np.float64], npt.NDArray[np.int64]] | None = field(
-        default=None, repr=False
-    )
 
 
 class HeadPipeline:
@@ -76,7 +72,6 @@ class HeadPipeline:
         self._maps = calibration.maps
         self._matcher = create_matcher(head.matcher)
         self._pre = head.preprocess
-        self._histogram = head.histogram
         self._post = head.postprocess
         self.work_rig = scale_rig(self.rig, head.preprocess.resize_scale)
         """The rig of the images the matcher sees (differs from ``rig`` when resizing)."""
@@ -168,8 +163,6 @@ class HeadPipeline:
             # match would be outside the right image), so nothing there is vouched for.
             disparity[:, :band] = np.nan
         depth = depth_from_disparity(disparity, self.work_rig)
-        hist = self._histogram
-        histogram = depth_histogram(depth, hist.min_m, hist.max_m, hist.bins)
         lap("depth")
         scan = sector_scan(
             depth, self.work_rig, self.mount, self._sectors, self._max_range_m, frame.t_capture_ns
@@ -185,5 +178,4 @@ class HeadPipeline:
             valid,
             timing,
             steps_ms,
-            histogram,
         )

@@ -10,10 +10,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import IO, Any
 
-import numpy as np
-import numpy.typing as npt
-
-from avoidd.config import AppConfig, HeadConfig
+from avoidd.config import AppConfig, HeadConfig, HistogramConfig
 from avoidd.errors import BrokenFrame, ConfigError, SourceExhausted
 from avoidd.mavlink.codec import Codec
 from avoidd.mavlink.messages import sectors_to_cm
@@ -21,8 +18,9 @@ from avoidd.perception.sectors import bin_of_bearing
 from avoidd.pipeline import STAGES, HeadPipeline
 from avoidd.sources import open_source
 from avoidd.sources.truth import nearest_obstacle
-from avoidd.types import Nearest
+from avoidd.types import FloatArray, Nearest
 from avoidd.vision.calibration import Calibration
+from avoidd.vision.depth import depth_histogram
 
 logger = logging.getLogger(__name__)
 
@@ -132,7 +130,7 @@ def replay(
                 "valid_fraction": round(result.valid_fraction, 4),
                 "timing_ms": {k: round(v, 3) for k, v in timing.items()},
                 "preprocess_steps_ms": {k: round(v, 3) for k, v in result.steps_ms.items()},
-                "depth_histogram": _histogram_json(result.histogram),
+                "depth_histogram": _histogram_json(result.depth_m, head.histogram),
             }
             if frame.truth is not None:
                 truth = nearest_obstacle(frame.truth, pipeline.mount, head.sectors.row_band)
@@ -157,12 +155,9 @@ def replay(
     return summary
 
 
-def _histogram_json(
-    histogram: tuple[npt.NDArray[np.float64], npt.NDArray[np.int64]] | None,
-) -> dict[str, list[float] | list[int]] | None:
-    if histogram is None:
-        return None
-    edges, counts = histogram
+def _histogram_json(depth_m: FloatArray, config: HistogramConfig) -> dict[str, list[Any]]:
+    """The frame's depth histogram (computed here, off the daemon's hot path)."""
+    edges, counts = depth_histogram(depth_m, config.min_m, config.max_m, config.bins)
     return {"edges_m": [round(float(e), 3) for e in edges], "counts": counts.tolist()}
 
 
