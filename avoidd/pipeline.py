@@ -54,6 +54,21 @@ class HeadResult:
     steps_ms: dict[str, float] = field(default_factory=dict)
 
 
+class Laps:
+    """A stopwatch: each call records the milliseconds since the previous one under a name."""
+
+    def __init__(self, prefix: str = "") -> None:
+        self.ms: dict[str, float] = {}
+        self._prefix = prefix
+        self._last = time.perf_counter()
+
+    def __call__(self, name: str) -> None:
+        """Record the time since the previous call (or creation) as ``name``."""
+        now = time.perf_counter()
+        self.ms[self._prefix + name] = (now - self._last) * 1000.0
+        self._last = now
+
+
 class HeadPipeline:
     """Runs the vision stages of one head; one frame at a time (not thread-safe).
 
@@ -83,15 +98,7 @@ class HeadPipeline:
     ) -> tuple[Image, Image, npt.NDArray[np.bool_] | None, dict[str, float]]:
         """Grey, resize, denoise, texture mask; returns the views, the mask and step timings."""
         pre = self._pre
-        steps: dict[str, float] = {}
-        started = time.perf_counter()
-
-        def step(name: str) -> None:
-            nonlocal started
-            now = time.perf_counter()
-            steps[f"preprocess.{name}"] = (now - started) * 1000.0
-            started = now
-
+        step = Laps("preprocess.")
         left, right = to_grey(left), to_grey(right)
         step("grey")
         if pre.resize_scale != 1.0:
@@ -106,7 +113,7 @@ class HeadPipeline:
             t = pre.texture
             texture = adaptive_texture_mask(left, t.method, t.window_px, t.offset, t.spread_px)
             step("texture")
-        return left, right, texture, steps
+        return left, right, texture, step.ms
 
     def check_frame(self, frame: StereoFrame) -> None:
         """Reject a frame whose size does not match the calibration.
@@ -136,15 +143,7 @@ class HeadPipeline:
             BrokenFrame: The frame does not fit the calibration.
         """
         self.check_frame(frame)
-        timing: dict[str, float] = {}
-        clock = time.perf_counter()
-
-        def lap(stage: str) -> None:
-            nonlocal clock
-            now = time.perf_counter()
-            timing[stage] = (now - clock) * 1000.0
-            clock = now
-
+        lap = Laps()
         left, right = rectify_pair(frame.left, frame.right, self._maps)
         lap("rectify")
         left, right, texture, steps_ms = self._preprocess(left, right)
@@ -176,6 +175,6 @@ class HeadPipeline:
             scan,
             depth,
             valid,
-            timing,
+            lap.ms,
             steps_ms,
         )
