@@ -9,6 +9,7 @@ import os
 import sys
 from collections.abc import Sequence
 from pathlib import Path
+from typing import Any
 
 from avoidd import __version__
 from avoidd.config import AppConfig, load_config
@@ -189,6 +190,88 @@ def _cmd_bench_link(args: argparse.Namespace) -> int:
     return EXIT_OK
 
 
+def _cmd_calibrate(args: argparse.Namespace) -> int:
+    from avoidd.calibrate.commands import make_board, run_calibrate
+
+    board = make_board(args.pattern, args.squares, args.square_mm, args.marker_mm, args.dictionary)
+    run_calibrate(args.folder, board, args.out)
+    return EXIT_OK
+
+
+def _cmd_render_board(args: argparse.Namespace) -> int:
+    from avoidd.calibrate.commands import make_board
+    from avoidd.calibrate.render import default_rig, write_pairs
+
+    board = make_board(args.pattern, args.squares, args.square_mm, args.marker_mm, args.dictionary)
+    write_pairs(args.folder, board, default_rig(), args.count, args.seed)
+    print(f"wrote {args.count} pairs to {args.folder}/left and {args.folder}/right")
+    return EXIT_OK
+
+
+def _cmd_import_calibration(args: argparse.Namespace) -> int:
+    from avoidd.calibrate.commands import run_import
+
+    run_import(args.kind, args.files, args.out)
+    return EXIT_OK
+
+
+def _cmd_check_rectification(args: argparse.Namespace) -> int:
+    import json
+
+    from avoidd.calibrate.commands import run_check
+
+    figures = run_check(args.calibration, args.folder, args.max_pairs)
+    if args.json is not None:
+        args.json.write_text(json.dumps(figures, indent=2) + "\n")
+    return EXIT_OK
+
+
+def _add_board_options(parser: argparse.ArgumentParser) -> None:
+    parser.add_argument("--pattern", choices=["chessboard", "charuco"], default="chessboard")
+    parser.add_argument(
+        "--squares", default="10x7", help="squares across x down (a 10x7 board has 9x6 corners)"
+    )
+    parser.add_argument("--square-mm", type=float, default=25.0, help="side of one square, mm")
+    parser.add_argument("--marker-mm", type=float, help="ChArUco marker side, mm")
+    parser.add_argument("--dictionary", default="DICT_4X4_50", help="ChArUco ArUco dictionary")
+
+
+def _add_calibration_commands(commands: argparse._SubParsersAction[Any]) -> None:
+    cal = commands.add_parser(
+        "calibrate", help="stereo calibration from left/ and right/ images of a board"
+    )
+    cal.add_argument("folder", type=Path, help="folder with left/ and right/ image pairs")
+    _add_board_options(cal)
+    cal.add_argument("--out", type=Path, required=True, help="calibration YAML to write")
+    cal.set_defaults(handler=_cmd_calibrate)
+
+    ren = commands.add_parser(
+        "render-board", help="render board pairs through a virtual rig (to try calibrate)"
+    )
+    ren.add_argument("folder", type=Path, help="where left/ and right/ are written")
+    _add_board_options(ren)
+    ren.add_argument("--count", type=int, default=15, help="number of pairs")
+    ren.add_argument("--seed", type=int, default=0)
+    ren.set_defaults(handler=_cmd_render_board)
+
+    imp = commands.add_parser(
+        "import-calibration", help="convert a EuRoC sensor.yaml pair or a Middlebury calib.txt"
+    )
+    imp.add_argument("kind", choices=["euroc", "middlebury"])
+    imp.add_argument("files", type=Path, nargs="+", help="cam0 and cam1 sensor.yaml, or calib.txt")
+    imp.add_argument("--out", type=Path, required=True, help="calibration YAML to write")
+    imp.set_defaults(handler=_cmd_import_calibration)
+
+    chk = commands.add_parser(
+        "check-rectification", help="|dy| of features matched across rectified real pairs"
+    )
+    chk.add_argument("--calibration", type=Path, required=True, help="calibration YAML")
+    chk.add_argument("folder", type=Path, help="left/ + right/ folder, or a EuRoC mav0 folder")
+    chk.add_argument("--max-pairs", type=int, default=20, help="pairs to sample")
+    chk.add_argument("--json", type=Path, help="also write the figures as JSON")
+    chk.set_defaults(handler=_cmd_check_rectification)
+
+
 def build_parser() -> argparse.ArgumentParser:
     """The argument parser of the ``avoidd`` command."""
     parser = argparse.ArgumentParser(
@@ -254,6 +337,8 @@ def build_parser() -> argparse.ArgumentParser:
     vb.add_argument("--quick", action="store_true", help="320x240 and 640x480, 64 disparities")
     vb.add_argument("--json", type=Path, help="also write the figures as JSON")
     vb.set_defaults(handler=_cmd_bench)
+
+    _add_calibration_commands(commands)
 
     bench = commands.add_parser(
         "bench-link", help="measure CPU for decoding a stream of incoming MAVLink"

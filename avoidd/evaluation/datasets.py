@@ -14,7 +14,6 @@ Layouts recognised in a scene folder:
 from __future__ import annotations
 
 import math
-import re
 from collections.abc import Iterator
 from dataclasses import dataclass
 from pathlib import Path
@@ -22,6 +21,7 @@ from pathlib import Path
 import cv2
 import numpy as np
 
+from avoidd.calibrate.importers import read_middlebury
 from avoidd.errors import ConfigError
 from avoidd.types import FloatArray, Image
 
@@ -95,16 +95,8 @@ def _range_for(truth: FloatArray, stated: int | None = None) -> int:
 
 
 def _calib_txt(path: Path) -> tuple[Calib, int]:
-    text = path.read_text()
-    values: dict[str, str] = dict(re.findall(r"(\w+)\s*=\s*([^\n]+)", text))
-    try:
-        focal_px = float(values["cam0"].strip(" []").split()[0])
-        baseline_m = float(values["baseline"]) / 1000.0
-        doffs_px = float(values.get("doffs", "0"))
-        ndisp = int(values["ndisp"])
-    except (KeyError, ValueError, IndexError) as exc:
-        raise ConfigError([f"{path}: not a Middlebury calib.txt ({exc})"]) from exc
-    return Calib(focal_px, baseline_m, doffs_px), ndisp
+    calib = read_middlebury(path)
+    return Calib(float(calib.cam0[0, 0]), calib.baseline_m, calib.doffs_px), calib.ndisp
 
 
 def _first(folder: Path, stem: str) -> Path | None:

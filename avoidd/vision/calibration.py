@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+from collections.abc import Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Literal
@@ -9,6 +10,7 @@ from typing import Literal
 import cv2
 import numpy as np
 import numpy.typing as npt
+import yaml
 from pydantic import BaseModel, ConfigDict, Field, field_validator, model_validator
 
 from avoidd.errors import ConfigError
@@ -132,6 +134,25 @@ class Calibration:
     )
 
 
+def write_calibration(
+    path: Path, model: RectifiedModel | StereoModel, comments: Sequence[str] = ()
+) -> None:
+    """Write a calibration file that ``load_calibration`` reads back.
+
+    Args:
+        path: Where to write (replaced atomically).
+        model: The rig.
+        comments: Lines for a ``#`` header (how the calibration was made, its errors).
+    """
+    key = "rectified" if isinstance(model, RectifiedModel) else "stereo"
+    body = {"version": 1, key: model.model_dump(mode="json")}
+    header = "".join(f"# {line}\n" for line in comments)
+    text = header + yaml.safe_dump(body, sort_keys=False, default_flow_style=None, width=100)
+    partial = path.with_name(path.name + ".partial")
+    partial.write_text(text, encoding="utf-8")
+    partial.replace(path)
+
+
 def load_calibration(path: Path) -> Calibration:
     """Read a calibration file and compute the rectification once.
 
@@ -158,6 +179,33 @@ def load_calibration(path: Path) -> Calibration:
     return Calibration(rig, maps, path, rotation)
 
 
+_F64 = npt.NDArray[np.float64]
+CameraRectification = tuple[_F64, _F64, _F64, _F64]
+
+
+def rectification(stereo: StereoModel) -> tuple[CameraRectification, CameraRectification]:
+    """OpenCV's rectification of a stereo calibration (principal points aligned).
+
+    Args:
+        stereo: The calibration.
+
+    Returns:
+        For the left and the right camera: camera matrix, distortion, rectifying rotation and
+        the 3x4 projection matrix of the rectified view.
+    """
+    k1 = np.asarray(stereo.K1, dtype=np.float64)
+    k2 = np.asarray(stereo.K2, dtype=np.float64)
+    d1 = np.asarray(stereo.D1, dtype=np.float64)
+    d2 = np.asarray(stereo.D2, dtype=np.float64)
+    rot = np.asarray(stereo.R, dtype=np.float64)
+    trans = np.asarray(stereo.T_m, dtype=np.float64).reshape(3, 1)
+    size = (stereo.width, stereo.height)
+    r1, r2, p1, p2, _q, _roi1, _roi2 = cv2.stereoRectify(
+        k1, d1, k2, d2, size, rot, trans, flags=cv2.CALIB_ZERO_DISPARITY, alpha=stereo.alpha
+    )
+    return (k1, d1, np.asarray(r1), np.asarray(p1)), (k2, d2, np.asarray(r2), np.asarray(p2))
+
+
 def rectify_stereo(
     stereo: StereoModel,
 ) -> tuple[RectifiedRig, RectifyMaps, npt.NDArray[np.float64]]:
@@ -174,15 +222,7 @@ def rectify_stereo(
         ValueError: The rig is vertical or its cameras are swapped.
     """
     size = (stereo.width, stereo.height)
-    k1 = np.asarray(stereo.K1, dtype=np.float64)
-    k2 = np.asarray(stereo.K2, dtype=np.float64)
-    d1 = np.asarray(stereo.D1, dtype=np.float64)
-    d2 = np.asarray(stereo.D2, dtype=np.float64)
-    rot = np.asarray(stereo.R, dtype=np.float64)
-    trans = np.asarray(stereo.T_m, dtype=np.float64).reshape(3, 1)
-    r1, r2, p1, p2, _q, _roi1, _roi2 = cv2.stereoRectify(
-        k1, d1, k2, d2, size, rot, trans, flags=cv2.CALIB_ZERO_DISPARITY, alpha=stereo.alpha
-    )
+    (k1, d1, r1, p1), (k2, d2, r2, p2) = rectification(stereo)
     if abs(p2[1, 3]) > abs(p2[0, 3]):
         raise ValueError("the cameras are stacked vertically; avoidd needs a horizontal rig")
     baseline_m = -float(p2[0, 3]) / float(p2[0, 0])

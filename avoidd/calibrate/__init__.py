@@ -1,0 +1,1 @@
+"""Stereo calibration: boards, detection, solving, a virtual rig, dataset importers."""

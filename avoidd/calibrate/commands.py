@@ -1,0 +1,216 @@
+"""The calibration commands: ``calibrate``, ``import-calibration`` and ``check-rectification``."""
+
+from __future__ import annotations
+
+from collections.abc import Iterator
+from datetime import UTC, datetime
+from pathlib import Path
+
+import cv2
+import numpy as np
+
+from avoidd.calibrate.board import Board, detect
+from avoidd.calibrate.check import matched_dy_px, rectify_pair
+from avoidd.calibrate.importers import euroc_stereo, middlebury_rectified
+from avoidd.calibrate.stereo import (
+    PairObservation,
+    PairReport,
+    StereoCalibration,
+    calibrate,
+    observe_pair,
+)
+from avoidd.errors import ConfigError, SourceError
+from avoidd.evaluation.progress import Progress
+from avoidd.sources.files import list_pairs
+from avoidd.types import Image
+from avoidd.vision.calibration import load_calibration, write_calibration
+
+# The rectification check warns above this mean |dy| of matched corners.
+DY_WARN_PX = 0.5
+
+
+def parse_grid(text: str, what: str) -> tuple[int, int]:
+    """``"10x7"`` as (10, 7).
+
+    Raises:
+        ConfigError: Not two positive integers joined by 'x'.
+    """
+    parts = text.lower().split("x")
+    if len(parts) == 2 and all(p.isdigit() and int(p) > 0 for p in parts):
+        return int(parts[0]), int(parts[1])
+    raise ConfigError([f"{what} {text!r}: write COLUMNSxROWS of squares, e.g. 10x7"])
+
+
+def make_board(
+    pattern: str, squares: str, square_mm: float, marker_mm: float | None, dictionary: str
+) -> Board:
+    """The board the command-line options describe.
+
+    Raises:
+        ConfigError: The options do not describe a usable board.
+    """
+    cols, rows = parse_grid(squares, "--squares")
+    if pattern == "charuco" and marker_mm is None:
+        raise ConfigError(["--marker-mm: a ChArUco board needs its marker size (e.g. 18)"])
+    try:
+        return Board(
+            "charuco" if pattern == "charuco" else "chessboard",
+            cols,
+            rows,
+            square_mm / 1000.0,
+            (marker_mm or 0.0) / 1000.0,
+            dictionary,
+        )
+    except ValueError as exc:
+        raise ConfigError([f"board: {exc}"]) from exc
+
+
+def _grey(path: Path) -> Image:
+    image = cv2.imread(str(path), cv2.IMREAD_GRAYSCALE)
+    if image is None:
+        raise SourceError(f"{path}: cannot read the image")
+    return np.asarray(image, np.uint8)
+
+
+def run_calibrate(folder: Path, board: Board, out: Path) -> StereoCalibration:
+    """Detect the board in every pair of ``folder`` (``left/``, ``right/``), calibrate, write.
+
+    Prints per-pair results, the errors and the rectification check.
+
+    Raises:
+        SourceError: The folder layout is wrong or the image sizes differ.
+        CalibrationFailed: Too few usable pairs.
+    """
+    pairs = list_pairs(folder)
+    progress = Progress(len(pairs))
+    observations: list[PairObservation | PairReport] = []
+    size: tuple[int, int] | None = None
+    for pair in pairs:
+        left, right = _grey(pair.left), _grey(pair.right)
+        shape = (left.shape[1], left.shape[0])
+        if right.shape != left.shape or (size is not None and shape != size):
+            raise SourceError(f"{pair.left}: every image must have the same size as the first")
+        size = shape
+        name = pair.left.name
+        observations.append(observe_pair(board, name, detect(board, left), detect(board, right)))
+        progress.step(name)
+    if size is None:
+        raise SourceError(f"{folder}: no image pairs")
+    result = calibrate(size, observations)
+    print(format_calibration(result))
+    used = sum(1 for p in result.pairs if p.used)
+    rig = result.rig
+    write_calibration(
+        out,
+        result.model,
+        [
+            f"avoidd calibrate {folder} ({board.pattern} {board.squares_x}x{board.squares_y}, "
+            f"{1000 * board.square_m:g} mm), {datetime.now(UTC):%Y-%m-%d %H:%M} UTC",
+            f"{used} of {len(pairs)} pairs used; RMS {result.rms_px:.3f} px; rectified |dy| "
+            f"mean {result.dy_mean_px:.3f} max {result.dy_max_px:.3f} px",
+            f"rectified: fx {rig.fx:.2f} px, baseline {rig.baseline_m:.5f} m",
+        ],
+    )
+    print(f"wrote {out}")
+    return result
+
+
+def format_calibration(result: StereoCalibration) -> str:
+    """Per-pair table, errors and rectification check as text."""
+    lines = ["pair                          corners  error px  status"]
+    for pair in result.pairs:
+        error = f"{pair.error_px:8.3f}" if pair.error_px is not None else "       -"
+        status = "used" if pair.used else f"dropped: {pair.reason}"
+        lines.append(f"{pair.name[:28]:<28}  {pair.corners:7d}  {error}  {status}")
+    model, rig = result.model, result.rig
+    lines += [
+        f"RMS reprojection error: stereo {result.rms_px:.3f} px, left {result.left_rms_px:.3f} px,"
+        f" right {result.right_rms_px:.3f} px",
+        f"left  fx {model.K1[0][0]:.2f} fy {model.K1[1][1]:.2f} cx {model.K1[0][2]:.2f} "
+        f"cy {model.K1[1][2]:.2f}",
+        f"right fx {model.K2[0][0]:.2f} fy {model.K2[1][1]:.2f} cx {model.K2[0][2]:.2f} "
+        f"cy {model.K2[1][2]:.2f}",
+        f"baseline {float(np.linalg.norm(model.T_m)):.5f} m; rectified fx {rig.fx:.2f} px",
+        f"rectification check: |dy| of matched corners mean {result.dy_mean_px:.3f} px, "
+        f"max {result.dy_max_px:.3f} px",
+    ]
+    if result.dy_mean_px > DY_WARN_PX:
+        lines.append(
+            f"WARNING: mean |dy| above {DY_WARN_PX} px; recapture with sharper, simultaneous pairs"
+        )
+    return "\n".join(lines)
+
+
+def run_import(kind: str, files: list[Path], out: Path) -> None:
+    """Convert a dataset's calibration into the project's format and write it.
+
+    Raises:
+        ConfigError: Wrong number of files or an invalid file.
+    """
+    if kind == "euroc":
+        if len(files) != 2:
+            raise ConfigError(["import-calibration euroc: give cam0/sensor.yaml cam1/sensor.yaml"])
+        model = euroc_stereo(files[0], files[1])
+        write_calibration(out, model, [f"imported from EuRoC {files[0]} and {files[1]}"])
+        print(f"EuRoC stereo rig, baseline {float(np.linalg.norm(model.T_m)):.4f} m")
+    else:
+        if len(files) != 1:
+            raise ConfigError(["import-calibration middlebury: give one calib.txt"])
+        rectified = middlebury_rectified(files[0])
+        write_calibration(out, rectified, [f"imported from Middlebury {files[0]}"])
+        print(f"Middlebury rectified rig, baseline {rectified.baseline_m:.4f} m")
+    print(f"wrote {out}")
+
+
+def stereo_folder_pairs(folder: Path) -> Iterator[tuple[str, Path, Path]]:
+    """Pairs of a ``left/``+``right/`` folder or of a EuRoC ``mav0`` (``cam0/data``, ``cam1/data``).
+
+    Raises:
+        SourceError: Neither layout.
+    """
+    cam0, cam1 = folder / "cam0" / "data", folder / "cam1" / "data"
+    if cam0.is_dir() and cam1.is_dir():
+        for left in sorted(cam0.iterdir()):
+            right = cam1 / left.name
+            if right.exists():
+                yield left.name, left, right
+        return
+    for pair in list_pairs(folder):
+        yield pair.left.name, pair.left, pair.right
+
+
+def run_check(calibration_path: Path, folder: Path, max_pairs: int) -> dict[str, float]:
+    """Rectify image pairs with a calibration and measure |dy| of matched features.
+
+    Returns:
+        ``pairs``, ``matches``, and |dy| ``mean``, ``median``, ``p95`` in pixels.
+    """
+    calibration = load_calibration(calibration_path)
+    pairs = list(stereo_folder_pairs(folder))
+    if not pairs:
+        raise SourceError(f"{folder}: no image pairs")
+    step = max(1, len(pairs) // max_pairs)
+    chosen = pairs[::step][:max_pairs]
+    max_disparity_px = 0.5 * calibration.rig.width
+    values = []
+    progress = Progress(len(chosen))
+    for name, left, right in chosen:
+        left_r, right_r = rectify_pair(calibration, _grey(left), _grey(right))
+        values.append(matched_dy_px(left_r, right_r, max_disparity_px))
+        progress.step(name)
+    dy = np.concatenate(values)
+    if dy.size == 0:
+        raise SourceError(f"{folder}: no features matched across the views; is it textured?")
+    figures = {
+        "pairs": float(len(chosen)),
+        "matches": float(dy.size),
+        "mean": float(dy.mean()),
+        "median": float(np.median(dy)),
+        "p95": float(np.percentile(dy, 95)),
+    }
+    print(
+        f"{len(chosen)} pairs, {dy.size} matched features: rectified |dy| mean "
+        f"{figures['mean']:.3f} px, median {figures['median']:.3f} px, "
+        f"95th percentile {figures['p95']:.3f} px"
+    )
+    return figures
