@@ -26,6 +26,7 @@ from avoidd.config import (
     PostprocessConfig,
     SadConfig,
     SectorsConfig,
+    SegmentConfig,
     SgbmConfig,
     SyntheticSourceConfig,
 )
@@ -50,6 +51,8 @@ def _matcher(name: str, num_disparities: int) -> MatcherConfig:
         return SadConfig(kind="sad", num_disparities=num_disparities)
     if name == "census":
         return CensusConfig(kind="census", num_disparities=num_disparities)
+    if name == "segment":
+        return SegmentConfig(kind="segment", num_disparities=num_disparities)
     return SgbmConfig(num_disparities=num_disparities)
 
 

@@ -306,7 +306,7 @@ def build_parser() -> argparse.ArgumentParser:
     ev.add_argument(
         "--matcher",
         action="append",
-        help="sgbm (default), sgbm-nopad, sad, sad-pad, opencv-sgbm; repeat to compare",
+        help="sgbm (default), sgbm-nopad, sad, sad-pad, census, segment, opencv-sgbm; repeat",
     )
     ev.add_argument("--max-scenes", type=int, help="stop after N scenes")
     ev.add_argument("--json", type=Path, help="also write the scores as JSON")
@@ -332,7 +332,7 @@ def build_parser() -> argparse.ArgumentParser:
     vb = commands.add_parser(
         "bench", help="per-stage milliseconds of each matcher next to bare OpenCV SGBM"
     )
-    vb.add_argument("--matcher", action="append", choices=["sgbm", "sad", "census"])
+    vb.add_argument("--matcher", action="append", choices=["sgbm", "sad", "census", "segment"])
     vb.add_argument("--frames", type=int, default=5, help="frames per configuration")
     vb.add_argument("--quick", action="store_true", help="320x240 and 640x480, 64 disparities")
     vb.add_argument("--json", type=Path, help="also write the figures as JSON")

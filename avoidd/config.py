@@ -245,6 +245,42 @@ class CensusConfig(_Strict):
     speckle_window_size: int = Field(100, ge=0)
 
 
+class SegmentConfig(_Strict):
+    """The paper's segmentation-based hybrid matcher.
+
+    Lightness (Lab L) is clustered by K-means on its histogram; each cluster is cleaned by a
+    morphological opening and split into connected regions; SAD block matching is kept only on
+    region boundaries; each region's interior is filled from its boundary disparities (a plane
+    fitted to them). Interior pixels are filled, not measured: obstacles never use them.
+
+    Attributes:
+        clusters: K of the K-means on lightness.
+        open_px: Side of the opening that removes thin fragments of a cluster (odd; 1 = off).
+        min_region_px: Regions smaller than this are not filled; their pixels keep the SAD value.
+        boundary_px: Width of the boundary band on each side of a region edge.
+        block_size: SAD window side (odd).
+        texture_threshold: As for ``sad``.
+        uniqueness_ratio: As for ``sad``.
+        min_boundary_px: Boundary measurements a region needs before its interior is filled.
+        max_residual_px: A region is filled only if its boundary disparities fit a plane this
+            well (median absolute residual); otherwise it spans a depth edge and stays empty.
+        pad_left: As for SGBM.
+    """
+
+    kind: Literal["segment"]
+    num_disparities: DisparityRange = 64
+    clusters: int = Field(8, ge=2, le=16)
+    open_px: Annotated[int, Field(ge=1, le=15), AfterValidator(_odd)] = 3
+    min_region_px: int = Field(64, ge=1)
+    boundary_px: int = Field(2, ge=1, le=8)
+    block_size: Annotated[int, Field(ge=5, le=51), AfterValidator(_odd)] = 9
+    texture_threshold: int = Field(10, ge=0)
+    uniqueness_ratio: int = Field(15, ge=0, le=100)
+    min_boundary_px: int = Field(12, ge=3)
+    max_residual_px: float = Field(1.0, gt=0.0)
+    pad_left: bool = True
+
+
 def _matcher_kind(value: object) -> str:
     if isinstance(value, dict):
         return str(value.get("kind", "sgbm"))
@@ -254,7 +290,8 @@ def _matcher_kind(value: object) -> str:
 MatcherConfig = Annotated[
     Annotated[SgbmConfig, Tag("sgbm")]
     | Annotated[SadConfig, Tag("sad")]
-    | Annotated[CensusConfig, Tag("census")],
+    | Annotated[CensusConfig, Tag("census")]
+    | Annotated[SegmentConfig, Tag("segment")],
     Discriminator(_matcher_kind),
 ]
 """The ``matcher`` section of a head: one of the matchers, chosen by ``kind``."""
@@ -331,11 +368,19 @@ class PostprocessConfig(_Strict):
         subpixel_refine: One Gauss-Newton step that removes the whole-pixel locking of SGBM.
         refine_window_px: Window of that step (odd).
         median_size: Median filter on the disparity (0 off, 3 or 5).
+        speckle_window_px: An extra speckle pass after refinement: islands smaller than this
+            are dropped (0 off; every matcher already removes speckles in its own step).
+        speckle_range_px: Disparity step that separates islands in that pass.
+        fill_holes: Also produce a hole-filled depth map (``filled_depth_m``, for display and
+            recordings). Obstacles never use it: they see measured pixels only.
     """
 
     subpixel_refine: bool = True
     refine_window_px: int = Field(7, ge=3, le=21)
     median_size: Literal[0, 3, 5] = 5
+    speckle_window_px: int = Field(0, ge=0)
+    speckle_range_px: float = Field(1.0, gt=0.0)
+    fill_holes: bool = False
 
     @field_validator("refine_window_px")
     @classmethod

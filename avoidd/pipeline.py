@@ -15,7 +15,12 @@ from avoidd.types import FloatArray, Image, Mount, RectifiedRig, SectorScan, Ste
 from avoidd.vision.calibration import Calibration
 from avoidd.vision.depth import depth_from_disparity
 from avoidd.vision.matchers import create_matcher
-from avoidd.vision.postprocess import median_smooth, refine_subpixel
+from avoidd.vision.postprocess import (
+    fill_holes,
+    median_smooth,
+    refine_subpixel,
+    remove_speckles,
+)
 from avoidd.vision.preprocess import (
     adaptive_texture_mask,
     denoise,
@@ -42,6 +47,9 @@ class HeadResult:
         timing_ms: Milliseconds per stage (see ``STAGES``).
         steps_ms: Milliseconds of each preprocessing step (``preprocess.grey`` ...), part of
             the ``preprocess`` stage.
+        filled_depth_m: Hole-filled depth for display and recordings, when
+            ``postprocess.fill_holes`` is on (includes matcher-filled pixels); never used for
+            obstacles.
     """
 
     head: str
@@ -52,6 +60,7 @@ class HeadResult:
     valid_fraction: float
     timing_ms: dict[str, float]
     steps_ms: dict[str, float] = field(default_factory=dict)
+    filled_depth_m: FloatArray | None = field(default=None, repr=False)
 
 
 class Laps:
@@ -149,12 +158,19 @@ class HeadPipeline:
         left, right, texture, steps_ms = self._preprocess(left, right)
         lap("preprocess")
         disparity = self._matcher.compute(left, right)
+        filled_by_matcher = self._matcher.last_filled
         lap("match")
-        if self._post.subpixel_refine:
-            disparity = refine_subpixel(left, right, disparity, self._post.refine_window_px)
-        disparity = median_smooth(disparity, self._post.median_size)
+        post = self._post
+        if post.subpixel_refine:
+            disparity = refine_subpixel(left, right, disparity, post.refine_window_px)
+        disparity = median_smooth(disparity, post.median_size)
+        disparity = remove_speckles(disparity, post.speckle_window_px, post.speckle_range_px)
         if texture is not None:
             disparity[~texture] = np.nan  # untextured: not measured, never guessed
+        display = disparity
+        if filled_by_matcher is not None:
+            disparity = disparity.copy()
+            disparity[filled_by_matcher] = np.nan  # filled, not measured
         lap("post")
         band = self._matcher.num_disparities
         if band:
@@ -162,6 +178,9 @@ class HeadPipeline:
             # match would be outside the right image), so nothing there is vouched for.
             disparity[:, :band] = np.nan
         depth = depth_from_disparity(disparity, self.work_rig)
+        filled_depth = None
+        if post.fill_holes:
+            filled_depth = depth_from_disparity(fill_holes(display), self.work_rig)
         lap("depth")
         scan = sector_scan(
             depth, self.work_rig, self.mount, self._sectors, self._max_range_m, frame.t_capture_ns
@@ -177,4 +196,5 @@ class HeadPipeline:
             valid,
             lap.ms,
             steps_ms,
+            filled_depth,
         )

@@ -14,6 +14,8 @@ Image = npt.NDArray[np.uint8]
 
 FloatArray = npt.NDArray[np.float32]
 """A float32 array; NaN marks an invalid (unmeasured) value."""
+BoolArray = npt.NDArray[np.bool_]
+"""A boolean mask, one value per pixel."""
 
 IdArray = npt.NDArray[np.int16]
 """Per-pixel surface ids of a synthetic view."""

@@ -11,7 +11,13 @@ from typing import Any
 import cv2
 import numpy as np
 
-from avoidd.config import CensusConfig, PostprocessConfig, SadConfig, SgbmConfig
+from avoidd.config import (
+    CensusConfig,
+    PostprocessConfig,
+    SadConfig,
+    SegmentConfig,
+    SgbmConfig,
+)
 from avoidd.errors import ConfigError
 from avoidd.evaluation.datasets import Scene, find_scenes
 from avoidd.evaluation.metrics import Scores, mean_scores, score
@@ -82,6 +88,11 @@ MATCHERS: dict[str, tuple[str, Callable[[int], Compute]]] = {
     "census": (
         "census (5x5 sparse) + sum of Hamming distances over 11x11, avoidd's post-processing",
         lambda n: _product(create_matcher(CensusConfig(kind="census", num_disparities=n))),
+    ),
+    "segment": (
+        "the paper's hybrid: K-means lightness regions, SAD (9x9) on boundaries, interiors "
+        "filled by a plane per region",
+        lambda n: _product(create_matcher(SegmentConfig(kind="segment", num_disparities=n))),
     ),
     "opencv-sgbm": (
         "baseline: bare OpenCV SGBM_3WAY, blockSize 5, P1 8*bs^2, P2 32*bs^2, uniqueness 10, "

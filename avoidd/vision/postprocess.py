@@ -1,9 +1,15 @@
-"""Disparity post-processing shared by every matcher: sub-pixel refinement and median smoothing."""
+"""Disparity post-processing shared by the matchers.
+
+Left-right consistency, speckle removal, sub-pixel refinement, median smoothing, and hole
+filling. Hole filling invents values: its result is for display and recordings only, never for
+obstacle detection (``avoidd.pipeline`` keeps the measured map for that).
+"""
 
 from __future__ import annotations
 
 import cv2
 import numpy as np
+import numpy.typing as npt
 
 from avoidd.types import FloatArray, Image
 
@@ -85,3 +91,71 @@ def median_smooth(disparity_px: FloatArray, size: int) -> FloatArray:
     smoothed = np.asarray(cv2.medianBlur(filled, size), dtype=np.float32)
     smoothed[invalid] = np.nan
     return smoothed
+
+
+def left_right_check(
+    left_px: npt.NDArray[np.int32], right_px: npt.NDArray[np.int32], max_diff_px: float
+) -> FloatArray:
+    """Keep left-view disparities that the right view's disparities point back to.
+
+    Args:
+        left_px: Integer disparity of every left pixel.
+        right_px: Integer disparity of every right pixel (its match is at x + d in the left).
+        max_diff_px: Largest disagreement kept.
+
+    Returns:
+        The left disparity as float32, NaN where the check fails or the match is off-image.
+    """
+    width = left_px.shape[1]
+    columns = np.arange(width, dtype=np.int32)[None, :] - left_px
+    back = np.take_along_axis(right_px, np.clip(columns, 0, width - 1), axis=1)
+    disparity = left_px.astype(np.float32)
+    disparity[(columns < 0) | (np.abs(back - left_px) > max_diff_px)] = np.nan
+    return disparity
+
+
+def remove_speckles(disparity_px: FloatArray, max_size_px: int, max_diff_px: float) -> FloatArray:
+    """Drop small islands of similar disparity (OpenCV's filterSpeckles).
+
+    Args:
+        disparity_px: Disparity, NaN where invalid.
+        max_size_px: Islands of fewer pixels are dropped (0: return the input).
+        max_diff_px: Neighbours within this disparity belong to the same island.
+
+    Returns:
+        A copy with the islands set to NaN.
+    """
+    if max_size_px <= 0:
+        return disparity_px
+    fixed = np.where(np.isfinite(disparity_px), disparity_px * 16.0, -16.0).astype(np.int16)
+    cv2.filterSpeckles(fixed, -16, max_size_px, max(1, round(16 * max_diff_px)))
+    out = disparity_px.copy()
+    out[fixed == -16] = np.nan
+    return out
+
+
+def fill_holes(disparity_px: FloatArray) -> FloatArray:
+    """Fill invalid pixels along each row from the farther of the nearest valid neighbours.
+
+    A hole is usually an occlusion next to a near surface, so the background (smaller)
+    disparity on either side is the better guess. Rows without any valid pixel stay NaN.
+    This invents values: use the result for display only, never for obstacles.
+
+    Args:
+        disparity_px: Disparity, NaN where invalid.
+
+    Returns:
+        A filled copy, float32.
+    """
+    height, width = disparity_px.shape
+    valid = ~np.isnan(disparity_px)
+    index = np.where(valid, np.arange(width)[None, :], -1)
+    from_left = np.maximum.accumulate(index, axis=1)
+    index_r = np.where(valid, np.arange(width)[None, :], width)
+    from_right = np.minimum.accumulate(index_r[:, ::-1], axis=1)[:, ::-1]
+    rows = np.arange(height)[:, None]
+    padded = np.concatenate([disparity_px, np.full((height, 1), np.nan, np.float32)], axis=1)
+    left_value = np.where(from_left >= 0, padded[rows, from_left], np.nan)
+    right_value = padded[rows, np.minimum(from_right, width)]
+    guess = np.fmin(left_value, right_value)
+    return np.asarray(np.where(valid, disparity_px, guess), np.float32)

@@ -2,13 +2,21 @@
 
 from __future__ import annotations
 
-from avoidd.config import CensusConfig, MatcherConfig, SadConfig
+from avoidd.config import CensusConfig, MatcherConfig, SadConfig, SegmentConfig
 from avoidd.vision.matchers.base import Matcher
 from avoidd.vision.matchers.census import CensusMatcher
 from avoidd.vision.matchers.sad import SadMatcher
+from avoidd.vision.matchers.segment import SegmentMatcher
 from avoidd.vision.matchers.sgbm import SgbmMatcher
 
-__all__ = ["CensusMatcher", "Matcher", "SadMatcher", "SgbmMatcher", "create_matcher"]
+__all__ = [
+    "CensusMatcher",
+    "Matcher",
+    "SadMatcher",
+    "SegmentMatcher",
+    "SgbmMatcher",
+    "create_matcher",
+]
 
 
 def create_matcher(config: MatcherConfig) -> Matcher:
@@ -24,4 +32,6 @@ def create_matcher(config: MatcherConfig) -> Matcher:
         return SadMatcher(config)
     if isinstance(config, CensusConfig):
         return CensusMatcher(config)
+    if isinstance(config, SegmentConfig):
+        return SegmentMatcher(config)
     return SgbmMatcher(config)

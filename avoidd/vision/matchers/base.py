@@ -4,11 +4,17 @@ from __future__ import annotations
 
 from typing import Protocol
 
-from avoidd.types import FloatArray, Image
+from avoidd.types import BoolArray, FloatArray, Image
 
 
 class Matcher(Protocol):
-    """Computes the disparity of the left view of a rectified grey pair."""
+    """Computes the disparity of the left view of a rectified grey pair.
+
+    ``last_filled`` marks pixels of the last result that the matcher filled rather than
+    measured (the segment matcher's region interiors); None when every value was measured.
+    """
+
+    last_filled: BoolArray | None
 
     @property
     def num_disparities(self) -> int:

@@ -20,8 +20,9 @@ import cv2
 import numpy as np
 
 from avoidd.config import CensusConfig
-from avoidd.types import FloatArray, Image
+from avoidd.types import BoolArray, FloatArray, Image
 from avoidd.vision.matchers.border import crop_padded, pad_left
+from avoidd.vision.postprocess import left_right_check, remove_speckles
 
 PATTERNS: dict[str, tuple[tuple[int, int], ...]] = {
     # 8 samples on the border of a 5x5 window: cheap and robust.
@@ -69,6 +70,8 @@ class CensusMatcher:
         config: Matcher parameters.
     """
 
+    last_filled: BoolArray | None = None  # every value is measured
+
     def __init__(self, config: CensusConfig) -> None:
         self._config = config
         self._pattern = PATTERNS[config.pattern]
@@ -89,12 +92,7 @@ class CensusMatcher:
         mask = (1 << shift) - 1
         disparity_left = (best_left & mask).astype(np.int32)
         disparity_right = (best_right & mask).astype(np.int32)
-        disparity = disparity_left.astype(np.float32)
-        # Left-right check: the right view's best match must point back within 1 px.
-        width = disparity.shape[1]
-        columns = np.arange(width, dtype=np.int32)[None, :] - disparity_left
-        back = np.take_along_axis(disparity_right, np.clip(columns, 0, width - 1), axis=1)
-        disparity[(columns < 0) | (np.abs(back - disparity_left) > config.lr_max_diff_px)] = np.nan
+        disparity = left_right_check(disparity_left, disparity_right, config.lr_max_diff_px)
         # Mean Hamming distance per pixel of the window at the best disparity.
         bits = len(self._pattern)
         area = config.aggregation_px * config.aggregation_px
@@ -102,7 +100,7 @@ class CensusMatcher:
         disparity[mean_bits > config.max_mean_distance * bits] = np.nan
         disparity[~texture_mask(left, config.texture_window_px, config.min_texture_std)] = np.nan
         if config.speckle_window_size > 0:
-            disparity = _remove_speckles(disparity, config.speckle_window_size)
+            disparity = remove_speckles(disparity, config.speckle_window_size, 1.0)
         return crop_padded(disparity, band)
 
     def _winner_take_all(
@@ -148,12 +146,3 @@ class CensusMatcher:
             right_view = best_right[:, : width - d]
             cv2.min(right_view, packed[:, d:], dst=right_view)
         return best_left, best_right, shift
-
-
-def _remove_speckles(disparity: FloatArray, window_size: int) -> FloatArray:
-    """Drop small islands of similar disparity (OpenCV's filterSpeckles, 1 px range)."""
-    fixed = np.where(np.isfinite(disparity), disparity * 16.0, -16.0).astype(np.int16)
-    cv2.filterSpeckles(fixed, -16, window_size, 16)
-    out = disparity.copy()
-    out[fixed == -16] = np.nan
-    return out

@@ -5,7 +5,7 @@ from __future__ import annotations
 import cv2
 
 from avoidd.config import SadConfig
-from avoidd.types import FloatArray, Image
+from avoidd.types import BoolArray, FloatArray, Image
 from avoidd.vision.matchers.border import run_opencv_matcher
 
 _PREFILTERS = {
@@ -20,6 +20,8 @@ class SadMatcher:
     Args:
         config: Matcher parameters.
     """
+
+    last_filled: BoolArray | None = None  # every value is measured
 
     def __init__(self, config: SadConfig) -> None:
         self._num_disparities = config.num_disparities

@@ -5,7 +5,7 @@ from __future__ import annotations
 import cv2
 
 from avoidd.config import SgbmConfig
-from avoidd.types import FloatArray, Image
+from avoidd.types import BoolArray, FloatArray, Image
 from avoidd.vision.matchers.border import run_opencv_matcher
 
 _MODES = {
@@ -22,6 +22,8 @@ class SgbmMatcher:
     Args:
         config: Matcher parameters; ``p1``/``p2`` default to 8 and 64 times block_size squared.
     """
+
+    last_filled: BoolArray | None = None  # every value is measured
 
     def __init__(self, config: SgbmConfig) -> None:
         area = config.block_size * config.block_size
