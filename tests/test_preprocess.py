@@ -79,7 +79,6 @@ def test_pipeline_with_preprocessing_still_finds_the_obstacle(tmp_path: Path) ->
     for record in records:
         steps = record["preprocess_steps_ms"]
         assert set(steps) == {
-            "preprocess.grey",
             "preprocess.resize",
             "preprocess.denoise",
             "preprocess.texture",
