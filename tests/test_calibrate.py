@@ -13,7 +13,13 @@ import pytest
 from avoidd.calibrate.board import Board, detect
 from avoidd.calibrate.importers import euroc_stereo, middlebury_rectified, read_middlebury
 from avoidd.calibrate.render import BoardRenderer, default_rig, sample_poses, write_pairs
-from avoidd.calibrate.stereo import CalibrationFailed, calibrate, observe_pair
+from avoidd.calibrate.stereo import (
+    CalibrationFailed,
+    PairObservation,
+    PairReport,
+    calibrate,
+    observe_pair,
+)
 from avoidd.cli import main
 from avoidd.errors import ConfigError
 from avoidd.vision.calibration import StereoModel, load_calibration, rectification
@@ -113,16 +119,22 @@ def test_calibrate_command_recovers_the_virtual_rig(
     assert "14 of 16 pairs used" in text
 
 
+def _observe_rendered(board: Board, count: int, seed: int) -> list[PairObservation | PairReport]:
+    """Render ``count`` pairs through the default rig and detect the board in both views."""
+    rig = default_rig()
+    renderer = BoardRenderer(board, rig)
+    rng = np.random.default_rng(seed)
+    observations = []
+    for index, (rvec, tvec) in enumerate(sample_poses(renderer, count, rng)):
+        left = detect(board, renderer.render(rig.left, rvec, tvec, rng))
+        right = detect(board, renderer.render(rig.right, rvec, tvec, rng))
+        observations.append(observe_pair(board, f"{index}", left, right))
+    return observations
+
+
 def test_charuco_round_trip() -> None:
     rig = default_rig()
-    renderer = BoardRenderer(CHARUCO, rig)
-    rng = np.random.default_rng(11)
-    observations = []
-    for index, (rvec, tvec) in enumerate(sample_poses(renderer, 12, rng)):
-        left = detect(CHARUCO, renderer.render(rig.left, rvec, tvec, rng))
-        right = detect(CHARUCO, renderer.render(rig.right, rvec, tvec, rng))
-        observations.append(observe_pair(CHARUCO, f"{index}", left, right))
-    result = calibrate((640, 480), observations)
+    result = calibrate((640, 480), _observe_rendered(CHARUCO, 12, 11))
     assert all(p.used for p in result.pairs)
     assert float(np.linalg.norm(result.model.T_m)) == pytest.approx(rig.baseline_m, rel=0.01)
     assert result.model.K1[0][0] == pytest.approx(rig.left.k[0, 0], rel=0.01)
@@ -131,17 +143,9 @@ def test_charuco_round_trip() -> None:
 
 
 def test_too_few_pairs_fail_with_advice(tmp_path: Path) -> None:
-    rig = default_rig()
-    renderer = BoardRenderer(CHESS, rig)
-    rng = np.random.default_rng(2)
-    observations = []
-    for index, (rvec, tvec) in enumerate(sample_poses(renderer, 3, rng)):
-        left = detect(CHESS, renderer.render(rig.left, rvec, tvec, rng))
-        right = detect(CHESS, renderer.render(rig.right, rvec, tvec, rng))
-        observations.append(observe_pair(CHESS, f"{index}", left, right))
     with pytest.raises(CalibrationFailed, match="only 3 usable pairs"):
-        calibrate((640, 480), observations)
-    write_pairs(tmp_path, CHESS, rig, 2)
+        calibrate((640, 480), _observe_rendered(CHESS, 3, 2))
+    write_pairs(tmp_path, CHESS, default_rig(), 2)
     assert main(["calibrate", str(tmp_path), "--out", str(tmp_path / "c.yaml")]) == 1
     assert not (tmp_path / "c.yaml").exists()
 
