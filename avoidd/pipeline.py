@@ -168,9 +168,9 @@ class HeadPipeline:
         disparity = remove_speckles(disparity, post.speckle_window_px, post.speckle_range_px)
         if texture is not None:
             disparity[~texture] = np.nan  # untextured: not measured, never guessed
-        display = disparity
+        # The display map is filled before anything is blanked; the map obstacles see is not.
+        filled_display = fill_holes(disparity) if post.fill_holes else None
         if filled_by_matcher is not None:
-            disparity = disparity.copy()
             disparity[filled_by_matcher] = np.nan  # filled, not measured
         lap("post")
         band = self._matcher.num_disparities
@@ -180,8 +180,8 @@ class HeadPipeline:
             disparity[:, :band] = np.nan
         depth = depth_from_disparity(disparity, self.work_rig)
         filled_depth = None
-        if post.fill_holes:
-            filled_depth = depth_from_disparity(fill_holes(display), self.work_rig)
+        if filled_display is not None:
+            filled_depth = depth_from_disparity(filled_display, self.work_rig)
         lap("depth")
         scan = sector_scan(
             depth, self.work_rig, self.mount, self._sectors, self._max_range_m, frame.t_capture_ns
