@@ -201,7 +201,6 @@ def _time_pipeline(
         codec.pack(codec.obstacle_distance(0, sectors_to_cm(result.scan, 20, 2000), 20, 2000))
         encode_ms = (time.perf_counter() - started) * 1000.0
         timing = {**result.timing_ms, "encode": encode_ms}
-        timing["obstacles"] = timing.pop("sectors")
         for stage in STAGES:
             per_stage[stage].append(timing[stage])
     return {stage: statistics.median(values) for stage, values in per_stage.items()}

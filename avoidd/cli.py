@@ -65,6 +65,26 @@ def load_all(path: Path) -> tuple[AppConfig, dict[str, Calibration]]:
                 f"{path}: heads.{head.name}.source asks {source.width}x{source.height} but "
                 f"{head.calibration} is for {rig.width}x{rig.height}; make them agree"
             )
+        if source.kind == "synthetic" and (
+            source.camera_pitch_deg != head.mount.pitch_deg or head.mount.roll_deg != 0.0
+        ):
+            problems.append(
+                f"{path}: heads.{head.name}: the synthetic camera is pitched "
+                f"{source.camera_pitch_deg} deg but mount.pitch_deg says {head.mount.pitch_deg} "
+                f"(roll {head.mount.roll_deg}); make the mount pitch equal camera_pitch_deg, "
+                "roll 0"
+            )
+        if config.mavlink.distance_sensor.enabled:
+            from avoidd.mavlink.messages import sensor_orientation
+            from avoidd.types import Mount
+
+            m = head.mount
+            if sensor_orientation(Mount(m.yaw_deg, m.pitch_deg, m.roll_deg)) is None:
+                problems.append(
+                    f"{path}: heads.{head.name}.mount: yaw {m.yaw_deg} deg, pitch {m.pitch_deg} "
+                    "deg has no DISTANCE_SENSOR orientation (yaw a multiple of 45 at pitch 0, "
+                    "or pitch +-90); fix the mount or set mavlink.distance_sensor.enabled: false"
+                )
         calibrations[head.name] = calibration
     signing = config.mavlink.signing
     if signing is not None:
@@ -119,6 +139,60 @@ def _cmd_replay(args: argparse.Namespace) -> int:
         summary = replay(config, calibrations[head.name], head, out, args.input, args.max_frames)
     print(format_summary(summary))
     print(f"wrote {summary.frames} lines to {args.out}")
+    return EXIT_OK
+
+
+def _cmd_measure(args: argparse.Namespace) -> int:
+    from avoidd.perception import commands as perception
+    from avoidd.replay import select_head
+
+    config, calibrations = load_all(args.config)
+    head = select_head(config, args.head)
+    pipeline, results = perception.process_frames(
+        config, head, calibrations[head.name], args.input, args.frame, 1
+    )
+    result = results[0]
+    geometry = perception.camera_geometry(pipeline, result)
+    if args.pixel is not None:
+        u, v = args.pixel
+        print(f"head '{head.name}', frame {result.seq}, pixel given")
+    else:
+        found = perception.nearest_obstacle_pixel(pipeline, result)
+        if found is None:
+            print(f"head '{head.name}', frame {result.seq}: no obstacle in view")
+            return EXIT_FAILURE
+        u, v = found
+        nearest = result.obstacles[0]
+        print(
+            f"head '{head.name}', frame {result.seq}: nearest obstacle "
+            f"{nearest.distance_m:.2f} m at {nearest.bearing_deg:+.1f} deg, "
+            f"its ground contact at pixel ({u}, {v})"
+        )
+    measurement = perception.measure_pixel(result.depth_m, pipeline.work_rig, geometry, u, v)
+    print(perception.format_measurement(measurement, geometry))
+    return EXIT_OK
+
+
+def _cmd_calibrate_mount(args: argparse.Namespace) -> int:
+    from avoidd.perception import commands as perception
+    from avoidd.replay import select_head
+
+    if args.height_m is not None or args.op_m is not None:
+        if args.height_m is None or args.op_m is None:
+            raise ConfigError(["--height-m and --op-m go together (camera height and OP)"])
+        print(perception.format_manual_mount(args.height_m, args.op_m))
+        return EXIT_OK
+    if args.config is None:
+        raise ConfigError(["give --config (fit flat ground) or --height-m and --op-m"])
+    config, calibrations = load_all(args.config)
+    head = select_head(config, args.head)
+    pipeline, results = perception.process_frames(
+        config, head, calibrations[head.name], args.input, 0, args.frames
+    )
+    rig = pipeline.work_rig
+    # Within 0.1 f B one pixel of disparity is at most 10% of depth.
+    fit = perception.fit_mount([r.depth_m for r in results], rig, 0.1 * rig.fx * rig.baseline_m)
+    print(perception.format_mount_fit(fit, head.mount.position_m[2]))
     return EXIT_OK
 
 
@@ -339,6 +413,33 @@ def build_parser() -> argparse.ArgumentParser:
     vb.set_defaults(handler=_cmd_bench)
 
     _add_calibration_commands(commands)
+
+    mea = commands.add_parser(
+        "measure",
+        help="range a pixel (or the nearest obstacle) by stereo and by the ground-plane geometry",
+    )
+    mea.add_argument("--config", type=Path, required=True, help="YAML configuration file")
+    mea.add_argument("--head", help="head name (default: the first)")
+    mea.add_argument("--input", type=Path, help="read this folder or video instead")
+    mea.add_argument("--frame", type=int, default=0, help="frame number (default 0)")
+    mea.add_argument(
+        "--pixel", type=int, nargs=2, metavar=("U", "V"), help="pixel (default: nearest obstacle)"
+    )
+    mea.set_defaults(handler=_cmd_measure)
+
+    cm = commands.add_parser(
+        "calibrate-mount",
+        help="camera height and tilt from a view of flat ground, or from measured h and OP",
+    )
+    cm.add_argument("--config", type=Path, help="fit the ground seen by this config's head")
+    cm.add_argument("--head", help="head name (default: the first)")
+    cm.add_argument("--input", type=Path, help="read this folder or video instead")
+    cm.add_argument("--frames", type=int, default=3, help="frames to fit (default 3)")
+    cm.add_argument("--height-m", type=float, help="measured camera height h")
+    cm.add_argument(
+        "--op-m", type=float, help="measured distance OP to where the axis meets the ground"
+    )
+    cm.set_defaults(handler=_cmd_calibrate_mount)
 
     bench = commands.add_parser(
         "bench-link", help="measure CPU for decoding a stream of incoming MAVLink"

@@ -89,13 +89,20 @@ def _default_obstacles() -> list[SyntheticObstacleConfig]:
 
 
 class SyntheticSourceConfig(_Strict):
-    """A rendered scene: textured ground, boxes and poles, a far tree line; exact depth known."""
+    """A rendered scene: textured ground, boxes and poles, a far tree line; exact depth known.
+
+    ``camera_pitch_deg`` is the head's mount pitch (the head's ``mount.pitch_deg`` must say the
+    same); ``vehicle_roll_deg`` and ``vehicle_pitch_deg`` tilt the whole rig and travel with
+    each frame as its recorded attitude, as does ``camera_height_m`` as its height.
+    """
 
     kind: Literal["synthetic"]
     fps: float = Field(15.0, gt=0.0, le=240.0)
     seed: int = Field(1, ge=0)
     camera_height_m: float = Field(1.5, gt=0.05, le=100.0)
     camera_pitch_deg: float = Field(0.0, ge=-45.0, le=45.0)
+    vehicle_roll_deg: float = Field(0.0, ge=-45.0, le=45.0)
+    vehicle_pitch_deg: float = Field(0.0, ge=-45.0, le=45.0)
     noise_std: float = Field(1.5, ge=0.0, le=20.0)
     approach_speed_mps: float = Field(0.0, ge=0.0, le=30.0)
     min_forward_m: float = Field(1.0, gt=0.0)
@@ -298,30 +305,35 @@ MatcherConfig = Annotated[
 
 
 class SectorsConfig(_Strict):
-    """How image columns become the 72 distance bins (first version: a band of image rows).
+    """How a head's obstacle points become the 72 distance bins.
 
     Attributes:
-        row_band: Top and bottom of the rows used, as fractions of the image height.
-        min_pixels: Pixels a bin's nearest cluster needs before it counts as an obstacle, so that
+        min_pixels: Points a bin's nearest cluster needs before it counts as an obstacle, so that
             a few speckles cannot create one.
         cluster_window_px: Width of that cluster in disparity pixels (about the matcher's noise
             band; see ``avoidd.perception.sectors.nearest_cluster_m``).
-        min_valid_fraction: Below this share of valid pixels a bin without an obstacle is
+        min_valid_fraction: Below this share of measured pixels a bin without an obstacle is
             unknown rather than clear.
+        min_size_m: A cluster must also cover a square of this side at its own distance (so
+            near clusters need many pixels, and pixels smeared off an edge cannot pass for an
+            object). The default is the smallest obstacle avoidd must see: a 5 cm pole.
     """
 
-    row_band: tuple[float, float] = (0.3, 0.5)
     min_pixels: int = Field(20, ge=1)
     cluster_window_px: float = Field(0.8, gt=0.0, le=16.0)
     min_valid_fraction: float = Field(0.3, ge=0.0, le=1.0)
+    min_size_m: float = Field(0.05, ge=0.0, le=1.0)
 
-    @field_validator("row_band")
+    @model_validator(mode="before")
     @classmethod
-    def _band(cls, value: tuple[float, float]) -> tuple[float, float]:
-        top, bottom = value
-        if not 0.0 <= top < bottom <= 1.0:
-            raise ValueError("needs 0 <= top < bottom <= 1 (fractions of the image height)")
-        return value
+    def _no_row_band(cls, data: object) -> object:
+        if isinstance(data, dict) and "row_band" in data:
+            raise ValueError(
+                "row_band is gone: obstacles are now points between the ground and the "
+                "height band of 'perception' (ground.margin_m, band.above_m, band.below_m); "
+                "delete row_band"
+            )
+        return data
 
 
 class TextureConfig(_Strict):
@@ -373,6 +385,10 @@ class PostprocessConfig(_Strict):
         speckle_range_px: Disparity step that separates islands in that pass.
         fill_holes: Also produce a hole-filled depth map (``filled_depth_m``, for display and
             recordings). Obstacles never use it: they see measured pixels only.
+        min_texture_snr: Drop disparities where the left view's local contrast (standard
+            deviation over ``texture_window_px``) is below this multiple of the frame's
+            sensor noise: a match in sky or on a blank wall is a guess (0: off).
+        texture_window_px: Window of that test (odd).
     """
 
     subpixel_refine: bool = True
@@ -381,6 +397,8 @@ class PostprocessConfig(_Strict):
     speckle_window_px: int = Field(0, ge=0)
     speckle_range_px: float = Field(1.0, gt=0.0)
     fill_holes: bool = False
+    min_texture_snr: float = Field(1.5, ge=0.0, le=20.0)
+    texture_window_px: Annotated[int, Field(ge=3, le=31), AfterValidator(_odd)] = 7
 
     @field_validator("refine_window_px")
     @classmethod
@@ -426,6 +444,96 @@ class HeadConfig(_Strict):
         if not _HEAD_NAME.match(value):
             raise ValueError("use lower case letters, digits, '-' or '_', e.g. 'front'")
         return value
+
+
+class GroundConfig(_Strict):
+    """The ground-plane model that keeps the ground from looking like an obstacle.
+
+    The ground is a horizontal plane ``height_m`` below the body origin (in the level frame,
+    which follows the vehicle attitude). The height comes from the first of these that is
+    known: a fresh downward rangefinder (DISTANCE_SENSOR, PITCH_270) corrected for the tilt,
+    the height above home (LOCAL_POSITION_NED) when ``use_altitude`` is on (flat ground only),
+    the height recorded with the frame, and finally ``height_m``.
+
+    Attributes:
+        height_m: Height of the body origin above the ground when nothing better is known.
+        use_altitude: Trust the height above home as height above ground.
+        margin_m: Points less than this above the ground plane are ground.
+        disparity_tolerance_px: A point must stay above the margin with its disparity this
+            much smaller (farther along its ray): far ground measured a pixel too near would
+            otherwise stand up as an obstacle.
+        rangefinder_max_age_ms: A rangefinder reading older than this is not used.
+    """
+
+    height_m: float = Field(1.5, gt=0.0, le=500.0)
+    use_altitude: bool = False
+    margin_m: float = Field(0.3, ge=0.0, le=5.0)
+    disparity_tolerance_px: float = Field(1.0, ge=0.0, le=16.0)
+    rangefinder_max_age_ms: int = Field(500, ge=10, le=5000)
+
+
+class BandConfig(_Strict):
+    """Points more than ``above_m`` above or ``below_m`` below the body origin are ignored."""
+
+    above_m: float = Field(2.0, gt=0.0, le=100.0)
+    below_m: float = Field(2.0, gt=0.0, le=100.0)
+
+
+class AttitudeConfig(_Strict):
+    """Attitude assumed when neither the autopilot nor the recording gives one."""
+
+    roll_deg: float = Field(0.0, ge=-90.0, le=90.0)
+    pitch_deg: float = Field(0.0, ge=-90.0, le=90.0)
+
+
+class TemporalConfig(_Strict):
+    """Per-bin filter between frames (see ``avoidd.perception.temporal``).
+
+    Attributes:
+        confirm_frames: A new obstacle is reported once it was seen in this many ...
+        window_frames: ... of the last this many frames (k of n); until then its bin is
+            unknown, neither clear nor an obstacle.
+        hold_ms: A confirmed obstacle that vanishes keeps its distance this long at most
+            (and never beyond ``pipeline.max_age_ms``: every bin carries its reading's capture
+            time, and the sender makes older bins unknown).
+    """
+
+    confirm_frames: int = Field(2, ge=1, le=10)
+    window_frames: int = Field(3, ge=1, le=10)
+    hold_ms: int = Field(200, ge=0, le=2000)
+
+    @model_validator(mode="after")
+    def _k_of_n(self) -> TemporalConfig:
+        if self.confirm_frames > self.window_frames:
+            raise ValueError("confirm_frames cannot exceed window_frames (k of n needs k <= n)")
+        return self
+
+
+class ObstaclesConfig(_Strict):
+    """Clustering of obstacle points into obstacles (per head and frame).
+
+    Attributes:
+        bearing_cell_deg: Angular cell of the clustering grid.
+        disparity_cell_px: Range cell of the grid, in disparity pixels (range noise is about
+            constant in disparity).
+        min_points: Points an obstacle needs.
+        max_count: Obstacles listed per head and frame, nearest first.
+    """
+
+    bearing_cell_deg: float = Field(1.0, gt=0.05, le=10.0)
+    disparity_cell_px: float = Field(1.0, gt=0.05, le=16.0)
+    min_points: int = Field(30, ge=1)
+    max_count: int = Field(16, ge=1, le=256)
+
+
+class PerceptionConfig(_Strict):
+    """Vehicle-wide perception: ground model, height band, attitude fallback, filtering."""
+
+    ground: GroundConfig = GroundConfig()
+    band: BandConfig = BandConfig()
+    attitude: AttitudeConfig = AttitudeConfig()
+    temporal: TemporalConfig = TemporalConfig()
+    obstacles: ObstaclesConfig = ObstaclesConfig()
 
 
 class ObstacleDistanceConfig(_Strict):
@@ -491,6 +599,25 @@ class SigningConfig(_Strict):
         return self
 
 
+class DistanceSensorConfig(_Strict):
+    """DISTANCE_SENSOR per head: its nearest obstacle, oriented by its mount.
+
+    A head's mount must point along one of the orientations DISTANCE_SENSOR can name: yaw a
+    multiple of 45 degrees with pitch 0, or straight up or down.
+    """
+
+    enabled: bool = False
+    rate_hz: float = Field(10.0, ge=1.0, le=50.0)
+
+
+class ObstacleDistance3dConfig(_Strict):
+    """OBSTACLE_DISTANCE_3D: the nearest ``max_points`` obstacle points (BODY_FRD, metres)."""
+
+    enabled: bool = False
+    rate_hz: float = Field(10.0, ge=1.0, le=50.0)
+    max_points: int = Field(16, ge=1, le=72)
+
+
 class MavlinkConfig(_Strict):
     """The MAVLink link and avoidd's identity on it.
 
@@ -508,6 +635,8 @@ class MavlinkConfig(_Strict):
     heartbeat_hz: float = Field(1.0, gt=0.0, le=10.0)
     link_timeout_s: float = Field(3.0, ge=0.5, le=60.0)
     obstacle_distance: ObstacleDistanceConfig = ObstacleDistanceConfig()
+    distance_sensor: DistanceSensorConfig = DistanceSensorConfig()
+    obstacle_distance_3d: ObstacleDistance3dConfig = ObstacleDistance3dConfig()
     streams: StreamsConfig = StreamsConfig()
     signing: SigningConfig | None = None
 
@@ -555,6 +684,7 @@ class AppConfig(_Strict):
     heads: list[HeadConfig] = Field(min_length=1, max_length=8)
     mavlink: MavlinkConfig
     pipeline: PipelineConfig = PipelineConfig()
+    perception: PerceptionConfig = PerceptionConfig()
 
     @field_validator("heads")
     @classmethod

@@ -10,20 +10,28 @@ import statistics
 import threading
 import time
 from collections import Counter, deque
+from collections.abc import Callable
 from dataclasses import dataclass, field
 
-from avoidd.config import AppConfig, HeadConfig
+from avoidd.config import AppConfig, HeadConfig, PerceptionConfig
 from avoidd.errors import AvoiddError, BrokenFrame, SourceError, SourceExhausted
 from avoidd.mavlink import codec as mav
 from avoidd.mavlink.link import MavLink
-from avoidd.mavlink.messages import sectors_to_cm, unknown_cm
+from avoidd.mavlink.messages import (
+    DistanceSensorHead,
+    nearest_points,
+    sectors_to_cm,
+    unknown_cm,
+)
 from avoidd.mavlink.signing import TimestampStore, load_key
 from avoidd.mavlink.vehicle import Vehicle
+from avoidd.perception.pose import resolve_pose
 from avoidd.perception.sectors import merge_scans
+from avoidd.perception.temporal import SectorFilter
 from avoidd.pipeline import HeadPipeline, HeadResult
 from avoidd.slot import LatestSlot
 from avoidd.sources import FrameSource, open_source
-from avoidd.types import SectorScan, StereoFrame
+from avoidd.types import FramePose, SectorScan, StereoFrame
 from avoidd.vision.calibration import Calibration
 
 logger = logging.getLogger(__name__)
@@ -57,6 +65,8 @@ class Head:
         loop: The daemon's event loop.
         stop: Set when the daemon shuts down.
         announce: Thread-safe callback for operator-visible events (severity, text).
+        perception: Ground model, band and temporal filter parameters.
+        pose_for: Attitude and height to interpret a frame with.
     """
 
     def __init__(
@@ -67,12 +77,17 @@ class Head:
         loop: asyncio.AbstractEventLoop,
         stop: threading.Event,
         announce: _Announcer,
+        perception: PerceptionConfig,
+        pose_for: Callable[[StereoFrame], FramePose],
     ) -> None:
         self.config = config
         self.name = config.name
-        self.pipeline = HeadPipeline(config, calibration, max_range_m)
+        self.pipeline = HeadPipeline(config, calibration, max_range_m, perception)
+        self.filter = SectorFilter(perception.temporal)
+        self._pose_for = pose_for
         self.slot: LatestSlot[StereoFrame] = LatestSlot(loop)
         self.latest: HeadResult | None = None
+        self.latest_scan: SectorScan | None = None
         self.stats = HeadStats()
         self.ended = False
         self._stop = stop
@@ -172,7 +187,8 @@ class Head:
         while True:
             frame = await self.slot.get()
             try:
-                result = await asyncio.to_thread(self.pipeline.process, frame)
+                pose = self._pose_for(frame)
+                result = await asyncio.to_thread(self.pipeline.process, frame, pose)
             except BrokenFrame as exc:
                 self.stats.broken += 1
                 logger.warning("%s", exc)
@@ -181,16 +197,22 @@ class Head:
                 self.stats.broken += 1
                 logger.exception("head '%s': frame %d failed", self.name, frame.seq)
                 continue
+            if self.latest is not None and result.t_capture_ns <= self.latest.t_capture_ns:
+                self.filter.reset()  # the source started over (a looping recording)
+            self.latest_scan = self.filter.update(result.scan)
             self.latest = result
             self.stats.processed += 1
             self.stats.latency_ms.append((time.monotonic_ns() - result.t_capture_ns) / 1e6)
 
     def fresh_scan(self, now_ns: int, max_age_ns: int) -> SectorScan | None:
-        """The latest scan if it is younger than ``max_age_ns``, else None."""
-        latest = self.latest
-        if latest is None or now_ns - latest.t_capture_ns > max_age_ns:
+        """The latest filtered scan if its frame is younger than ``max_age_ns``, else None.
+
+        Bins holding a reading older than ``max_age_ns`` (a held obstacle) come back unknown.
+        """
+        latest, scan = self.latest, self.latest_scan
+        if latest is None or scan is None or now_ns - latest.t_capture_ns > max_age_ns:
             return None
-        return latest.scan
+        return scan.expired(now_ns, max_age_ns)
 
 
 class _Announcer:
@@ -279,7 +301,16 @@ class Daemon:
         announcer = _Announcer(loop)
         max_range_m = self.config.mavlink.obstacle_distance.max_distance_cm / 100.0
         self.heads = [
-            Head(h, self._calibrations[h.name], max_range_m, loop, self._stop_threads, announcer)
+            Head(
+                h,
+                self._calibrations[h.name],
+                max_range_m,
+                loop,
+                self._stop_threads,
+                announcer,
+                self.config.perception,
+                self.pose_for,
+            )
             for h in self.config.heads
         ]
         spec = self.config.mavlink.link
@@ -305,6 +336,11 @@ class Daemon:
         tasks = [
             asyncio.create_task(head.compute(), name=f"compute-{head.name}") for head in self.heads
         ]
+        mavlink = self.config.mavlink
+        if mavlink.distance_sensor.enabled:
+            tasks.append(asyncio.create_task(self._distance_sensor_loop(), name="distance"))
+        if mavlink.obstacle_distance_3d.enabled:
+            tasks.append(asyncio.create_task(self._obstacle_3d_loop(), name="obstacle-3d"))
         tasks += [
             asyncio.create_task(self._send_loop(), name="send"),
             asyncio.create_task(self._heartbeat_loop(), name="heartbeat"),
@@ -351,6 +387,83 @@ class Daemon:
             await asyncio.sleep(_SIGNING_KEEP_S)
             self._timestamps.keep(self._codec.signing_timestamp)
 
+    def pose_for(self, frame: StereoFrame) -> FramePose:
+        """Attitude and height for a frame (see :func:`avoidd.perception.pose.resolve_pose`)."""
+        vehicle = self.vehicle
+        return resolve_pose(
+            frame.t_capture_ns,
+            frame.pose,
+            vehicle.attitude_at(frame.t_capture_ns),
+            vehicle.rangefinder,
+            vehicle.position,
+            self.config.perception,
+        )
+
+    async def _every(self, rate_hz: float, send: Callable[[], None]) -> None:
+        """Call ``send`` at ``rate_hz`` without drift (skipping ahead after a stall)."""
+        period_s = 1.0 / rate_hz
+        next_s = time.monotonic()
+        while True:
+            send()
+            next_s += period_s
+            delay_s = next_s - time.monotonic()
+            if delay_s < -period_s:
+                next_s = time.monotonic()
+                delay_s = 0.0
+            await asyncio.sleep(max(delay_s, 0.0))
+
+    async def _distance_sensor_loop(self) -> None:
+        config = self.config.mavlink
+        od = config.obstacle_distance
+        max_age_ns = self.config.pipeline.max_age_ms * 1_000_000
+        sensors = {
+            head.name: DistanceSensorHead(head.pipeline.work_rig, head.pipeline.mount, index)
+            for index, head in enumerate(self.heads)
+        }
+
+        def send() -> None:
+            now_ns = time.monotonic_ns()
+            for head in self.heads:
+                scan = head.fresh_scan(now_ns, max_age_ns)
+                latest = head.latest
+                if scan is None or latest is None:
+                    continue  # stale: say nothing, the autopilot times the sensor out
+                sensor = sensors[head.name]
+                reading_cm = sensor.reading_cm(scan, od.min_distance_cm, od.max_distance_cm)
+                if reading_cm is None:
+                    continue
+                self.link.send(
+                    sensor.message(
+                        self._codec,
+                        self.vehicle.time_boot_ms(latest.t_capture_ns),
+                        reading_cm,
+                        od.min_distance_cm,
+                        od.max_distance_cm,
+                        latest.valid_fraction,
+                    )
+                )
+
+        await self._every(config.distance_sensor.rate_hz, send)
+
+    async def _obstacle_3d_loop(self) -> None:
+        config = self.config.mavlink
+        od = config.obstacle_distance
+        od3 = config.obstacle_distance_3d
+
+        def send() -> None:
+            scan = self._current_scan()
+            if scan is None:
+                return
+            time_boot_ms = self.vehicle.time_boot_ms(scan.t_capture_ns)
+            for point in nearest_points(scan, od3.max_points):
+                self.link.send(
+                    self._codec.obstacle_distance_3d(
+                        time_boot_ms, point, od.min_distance_cm / 100, od.max_distance_cm / 100
+                    )
+                )
+
+        await self._every(od3.rate_hz, send)
+
     def _current_scan(self) -> SectorScan | None:
         now_ns = time.monotonic_ns()
         max_age_ns = self.config.pipeline.max_age_ms * 1_000_000
@@ -359,9 +472,8 @@ class Daemon:
 
     async def _send_loop(self) -> None:
         od = self.config.mavlink.obstacle_distance
-        period_s = 1.0 / od.rate_hz
-        next_s = time.monotonic()
-        while True:
+
+        def send() -> None:
             scan = self._current_scan()
             if scan is None:
                 distances = unknown_cm()
@@ -374,12 +486,8 @@ class Daemon:
                     time_usec, distances, od.min_distance_cm, od.max_distance_cm
                 )
             )
-            next_s += period_s
-            delay_s = next_s - time.monotonic()
-            if delay_s < -period_s:
-                next_s = time.monotonic()
-                delay_s = 0.0
-            await asyncio.sleep(max(delay_s, 0.0))
+
+        await self._every(od.rate_hz, send)
 
     def _stale_heads(self) -> set[str] | None:
         """Heads without fresh data, or None during the boot grace before any head produced."""

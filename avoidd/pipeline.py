@@ -8,10 +8,19 @@ from dataclasses import dataclass, field
 import numpy as np
 import numpy.typing as npt
 
-from avoidd.config import HeadConfig
+from avoidd.config import HeadConfig, PerceptionConfig
 from avoidd.errors import BrokenFrame
-from avoidd.perception.sectors import sector_scan
-from avoidd.types import FloatArray, Image, Mount, RectifiedRig, SectorScan, StereoFrame
+from avoidd.perception.obstacles import Obstacle
+from avoidd.perception.perceive import perceive
+from avoidd.types import (
+    FloatArray,
+    FramePose,
+    Image,
+    Mount,
+    RectifiedRig,
+    SectorScan,
+    StereoFrame,
+)
 from avoidd.vision.calibration import Calibration
 from avoidd.vision.depth import depth_from_disparity
 from avoidd.vision.matchers import create_matcher
@@ -20,6 +29,7 @@ from avoidd.vision.postprocess import (
     median_smooth,
     refine_subpixel,
     remove_speckles,
+    texture_gate,
 )
 from avoidd.vision.preprocess import (
     adaptive_texture_mask,
@@ -30,7 +40,7 @@ from avoidd.vision.preprocess import (
 )
 from avoidd.vision.rectify import rectify_pair
 
-STAGES = ("rectify", "preprocess", "match", "post", "depth", "sectors")
+STAGES = ("rectify", "preprocess", "match", "post", "depth", "obstacles")
 
 
 @dataclass(frozen=True)
@@ -50,6 +60,9 @@ class HeadResult:
         filled_depth_m: Hole-filled depth for display and recordings, when
             ``postprocess.fill_holes`` is on (includes matcher-filled pixels); never used for
             obstacles.
+        obstacles: The head's obstacles, nearest first (when asked for).
+        pose: Attitude and height the frame was interpreted with.
+        obstacle_points: Points left after ground and band rejection.
     """
 
     head: str
@@ -61,6 +74,9 @@ class HeadResult:
     timing_ms: dict[str, float]
     steps_ms: dict[str, float] = field(default_factory=dict)
     filled_depth_m: FloatArray | None = field(default=None, repr=False)
+    obstacles: list[Obstacle] = field(default_factory=list)
+    pose: FramePose | None = None
+    obstacle_points: int = 0
 
 
 class Laps:
@@ -85,22 +101,41 @@ class HeadPipeline:
         head: The head's configuration.
         calibration: Its loaded calibration.
         max_range_m: Readings at or beyond this range are clear.
+        perception: Ground model, height band, attitude fallback and clustering.
     """
 
-    def __init__(self, head: HeadConfig, calibration: Calibration, max_range_m: float) -> None:
+    def __init__(
+        self,
+        head: HeadConfig,
+        calibration: Calibration,
+        max_range_m: float,
+        perception: PerceptionConfig | None = None,
+    ) -> None:
         self.name = head.name
         self.rig: RectifiedRig = calibration.rig
         self.mount = Mount(
             head.mount.yaw_deg, head.mount.pitch_deg, head.mount.roll_deg, head.mount.position_m
         )
         self._maps = calibration.maps
+        self.rectified_from_raw = calibration.rectified_from_raw
         self._matcher = create_matcher(head.matcher)
         self._pre = head.preprocess
         self._post = head.postprocess
         self.work_rig = scale_rig(self.rig, head.preprocess.resize_scale)
         """The rig of the images the matcher sees (differs from ``rig`` when resizing)."""
         self._sectors = head.sectors
+        self._histogram = head.histogram
         self._max_range_m = max_range_m
+        self.perception = perception or PerceptionConfig()
+
+    def default_pose(self, frame: StereoFrame) -> FramePose:
+        """The pose recorded with the frame, else the configured attitude and height."""
+        if frame.pose is not None:
+            return frame.pose
+        assumed = self.perception.attitude
+        return FramePose(
+            assumed.roll_deg, assumed.pitch_deg, self.perception.ground.height_m, "config", "config"
+        )
 
     def _preprocess(
         self, left: Image, right: Image
@@ -137,11 +172,16 @@ class HeadPipeline:
                     f"frame {frame.seq} dropped"
                 )
 
-    def process(self, frame: StereoFrame) -> HeadResult:
+    def process(
+        self, frame: StereoFrame, pose: FramePose | None = None, with_obstacles: bool = False
+    ) -> HeadResult:
         """Run every stage on one frame.
 
         Args:
             frame: The raw stereo pair.
+            pose: Vehicle attitude and height at capture (from the autopilot); default
+                :meth:`default_pose`.
+            with_obstacles: Also cluster obstacle points into obstacles (replay, debugging).
 
         Returns:
             The head's result for this frame.
@@ -168,6 +208,9 @@ class HeadPipeline:
         disparity = remove_speckles(disparity, post.speckle_window_px, post.speckle_range_px)
         if texture is not None:
             disparity[~texture] = np.nan  # untextured: not measured, never guessed
+        if post.min_texture_snr > 0:
+            textured = texture_gate(left, post.texture_window_px, post.min_texture_snr)
+            disparity[~textured] = np.nan  # contrast below the noise: a guess
         # The display map is filled before anything is blanked; the map obstacles see is not.
         filled_display = fill_holes(disparity) if post.fill_holes else None
         if filled_by_matcher is not None:
@@ -183,19 +226,32 @@ class HeadPipeline:
         if filled_display is not None:
             filled_depth = depth_from_disparity(filled_display, self.work_rig)
         lap("depth")
-        scan = sector_scan(
-            depth, self.work_rig, self.mount, self._sectors, self._max_range_m, frame.t_capture_ns
+        seen = perceive(
+            depth,
+            self.work_rig,
+            self.mount,
+            pose or self.default_pose(frame),
+            self.perception,
+            self._sectors,
+            self._histogram,
+            self._max_range_m,
+            frame.t_capture_ns,
+            with_obstacles,
+            self.rectified_from_raw,
         )
-        lap("sectors")
+        lap("obstacles")
         valid = float(np.count_nonzero(~np.isnan(disparity))) / disparity.size
         return HeadResult(
             self.name,
             frame.seq,
             frame.t_capture_ns,
-            scan,
+            seen.scan,
             depth,
             valid,
             lap.ms,
             steps_ms,
             filled_depth,
+            seen.obstacles,
+            seen.pose,
+            seen.candidates,
         )

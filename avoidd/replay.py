@@ -15,6 +15,7 @@ from avoidd.errors import BrokenFrame, ConfigError, SourceExhausted
 from avoidd.mavlink.codec import Codec
 from avoidd.mavlink.messages import sectors_to_cm
 from avoidd.perception.sectors import bin_of_bearing
+from avoidd.perception.temporal import SectorFilter
 from avoidd.pipeline import STAGES, HeadPipeline
 from avoidd.sources import open_source
 from avoidd.sources.truth import nearest_obstacle
@@ -78,9 +79,12 @@ def replay(
 ) -> ReplaySummary:
     """Process every frame of a head's source as fast as possible and write JSON lines.
 
-    Each line holds ``seq``, ``t_capture_ns``, ``nearest`` (``{"distance_m", "bearing_deg"}`` or
-    null), ``sectors_cm`` (the 72 values as they would be sent), ``timing_ms`` per stage and, for
-    the synthetic source, ``truth`` (``{"nearest_m", "nearest_bearing_deg"}``).
+    Each line holds ``seq``, ``t_capture_ns``, ``nearest`` (``{"distance_m", "bearing_deg"}`` of
+    the frame's own scan, or null), ``sectors_cm`` (the 72 values as they would be sent, after
+    the temporal filter), ``raw_sectors_cm`` (before it), ``obstacles`` (see
+    :meth:`avoidd.perception.obstacles.Obstacle.to_json`), ``pose`` (attitude and height used),
+    ``timing_ms`` per stage and, for the synthetic source, ``truth``
+    (``{"nearest_m", "nearest_bearing_deg"}``).
 
     Args:
         config: The configuration.
@@ -94,7 +98,8 @@ def replay(
         Totals of the run.
     """
     od = config.mavlink.obstacle_distance
-    pipeline = HeadPipeline(head, calibration, od.max_distance_cm / 100.0)
+    pipeline = HeadPipeline(head, calibration, od.max_distance_cm / 100.0, config.perception)
+    temporal = SectorFilter(config.perception.temporal)
     codec = Codec(config.mavlink.fixed_system_id or 1, config.mavlink.component_id)
     source = open_source(
         head.source, calibration.rig, head.name, paced=False, input_path=input_path
@@ -105,7 +110,7 @@ def replay(
         while max_frames is None or summary.frames < max_frames:
             try:
                 frame = source.read()
-                result = pipeline.process(frame)
+                result = pipeline.process(frame, with_obstacles=True)
             except BrokenFrame as exc:
                 summary.dropped += 1
                 logger.warning("%s", exc)
@@ -113,7 +118,8 @@ def replay(
             except SourceExhausted:
                 break
             started = time.perf_counter()
-            sectors_cm = sectors_to_cm(result.scan, od.min_distance_cm, od.max_distance_cm)
+            scan = temporal.update(result.scan)
+            sectors_cm = sectors_to_cm(scan, od.min_distance_cm, od.max_distance_cm)
             codec.pack(
                 codec.obstacle_distance(
                     result.t_capture_ns // 1000, sectors_cm, od.min_distance_cm, od.max_distance_cm
@@ -121,19 +127,33 @@ def replay(
             )
             timing = {**result.timing_ms, "encode": (time.perf_counter() - started) * 1000.0}
             nearest = result.scan.nearest()
+            pose = result.pose
             record: dict[str, Any] = {
                 "head": head.name,
                 "seq": result.seq,
                 "t_capture_ns": result.t_capture_ns,
                 "nearest": _nearest_json(nearest),
                 "sectors_cm": sectors_cm,
+                "raw_sectors_cm": sectors_to_cm(
+                    result.scan, od.min_distance_cm, od.max_distance_cm
+                ),
+                "obstacles": [o.to_json() for o in result.obstacles],
+                "pose": None
+                if pose is None
+                else {
+                    "roll_deg": round(pose.roll_deg, 2),
+                    "pitch_deg": round(pose.pitch_deg, 2),
+                    "height_m": round(pose.height_m, 3),
+                    "source": pose.source,
+                    "height_source": pose.height_source,
+                },
                 "valid_fraction": round(result.valid_fraction, 4),
                 "timing_ms": {k: round(v, 3) for k, v in timing.items()},
                 "preprocess_steps_ms": {k: round(v, 3) for k, v in result.steps_ms.items()},
                 "depth_histogram": _histogram_json(result.depth_m, head.histogram),
             }
-            if frame.truth is not None:
-                truth = nearest_obstacle(frame.truth, pipeline.mount, head.sectors.row_band)
+            if frame.truth is not None and pose is not None:
+                truth = nearest_obstacle(frame.truth, pipeline.mount, pose, config.perception)
                 record["truth"] = {
                     "nearest_m": round(truth.distance_m, 4) if truth else None,
                     "nearest_bearing_deg": round(truth.bearing_deg, 2) if truth else None,

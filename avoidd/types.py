@@ -39,6 +39,25 @@ class GroundTruth(NamedTuple):
     points_m: FloatArray
 
 
+class FramePose(NamedTuple):
+    """Vehicle attitude and height above ground at a frame's capture time.
+
+    Attributes:
+        roll_deg: Vehicle roll, positive right side down.
+        pitch_deg: Vehicle pitch, positive nose up.
+        height_m: Height of the body origin above the ground.
+        source: Where the attitude came from (``mavlink``, ``recording``, ``config``).
+        height_source: Where the height came from (``rangefinder``, ``altitude``,
+            ``recording``, ``config``).
+    """
+
+    roll_deg: float
+    pitch_deg: float
+    height_m: float
+    source: str = "config"
+    height_source: str = "config"
+
+
 class StereoFrame(NamedTuple):
     """One stereo pair as a source delivers it.
 
@@ -48,6 +67,7 @@ class StereoFrame(NamedTuple):
         left: Left image (the reference view of the disparity map).
         right: Right image.
         truth: Exact geometry, for synthetic sources only.
+        pose: Attitude and height recorded with the frame (recordings, synthetic scenes).
     """
 
     seq: int
@@ -55,6 +75,7 @@ class StereoFrame(NamedTuple):
     left: Image
     right: Image
     truth: GroundTruth | None = None
+    pose: FramePose | None = None
 
 
 @dataclass(frozen=True)
@@ -99,21 +120,54 @@ class Mount:
     position_m: tuple[float, float, float] = (0.0, 0.0, 0.0)
 
 
+TimeArray = npt.NDArray[np.int64]
+"""Per-bin times in nanoseconds."""
+
+
 @dataclass(frozen=True)
 class SectorScan:
     """Distances around the vehicle in 72 bins of 5 degrees (body FRD, bin i centred on i*5 deg).
 
     Values are metres. ``NaN`` means unknown (not covered, not measured, or stale) and ``inf``
     means measured clear up to the sensor's maximum range.
+
+    Attributes:
+        t_capture_ns: Capture time of the newest frame in the scan.
+        distance_m: (72,) horizontal distance per bin.
+        points_frd_m: (72, 3) the body-frame point each finite bin reports (NaN elsewhere),
+            or None.
+        reading_t_ns: (72,) capture time of each bin's reading, or None when every bin comes
+            from ``t_capture_ns``; a held reading is older than the frame.
     """
 
     t_capture_ns: int
     distance_m: FloatArray = field(repr=False)
+    points_frd_m: FloatArray | None = field(default=None, repr=False)
+    reading_t_ns: TimeArray | None = field(default=None, repr=False)
 
     @staticmethod
     def unknown(t_capture_ns: int = 0) -> SectorScan:
         """A scan in which every bin is unknown."""
         return SectorScan(t_capture_ns, np.full(SECTOR_COUNT, np.nan, dtype=np.float32))
+
+    def times_ns(self) -> TimeArray:
+        """Capture time of every bin's reading."""
+        if self.reading_t_ns is not None:
+            return self.reading_t_ns
+        return np.full(SECTOR_COUNT, self.t_capture_ns, dtype=np.int64)
+
+    def expired(self, now_ns: int, max_age_ns: int) -> SectorScan:
+        """This scan with every bin whose reading is older than ``max_age_ns`` made unknown."""
+        old = now_ns - self.times_ns() > max_age_ns
+        if not old.any():
+            return self
+        distance = self.distance_m.copy()
+        distance[old] = np.nan
+        points = None
+        if self.points_frd_m is not None:
+            points = self.points_frd_m.copy()
+            points[old] = np.nan
+        return SectorScan(self.t_capture_ns, distance, points, self.reading_t_ns)
 
     def nearest(self) -> Nearest | None:
         """The closest measured bin, or None if no bin holds a finite distance."""

@@ -36,7 +36,8 @@ def truth_of(config_path: Path) -> tuple[float, int]:
     assert head.source.kind == "synthetic"
     frame = SyntheticSource(head.source, rig, paced=False).read()
     assert frame.truth is not None
-    nearest = nearest_obstacle(frame.truth, Mount(), head.sectors.row_band)
+    assert frame.pose is not None
+    nearest = nearest_obstacle(frame.truth, Mount(), frame.pose, config.perception)
     assert nearest is not None
     return nearest.distance_m, int(bin_of_bearing(nearest.bearing_deg))
 

@@ -154,7 +154,9 @@ async def test_stale_pipeline_sends_unknown_critical_and_says_so(tmp_path: Path)
 
     rng = np.random.default_rng(0)
     for i in range(4):
-        image = rng.integers(0, 255, (240, 320), dtype=np.uint8)
+        # Texture coarser than a pixel: iid pixel noise would read as sensor noise alone.
+        noise = rng.normal(128.0, 60.0, (240, 320)).astype(np.float32)
+        image = np.clip(cv2.GaussianBlur(noise, (0, 0), 1.5) * 3 - 256, 0, 255).astype(np.uint8)
         cv2.imwrite(str(folder / "left" / f"{i}.png"), image)
         cv2.imwrite(str(folder / "right" / f"{i}.png"), np.roll(image, -8, axis=1))
     peer = await open_udp_peer()

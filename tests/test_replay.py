@@ -1,6 +1,7 @@
 from __future__ import annotations
 
 import json
+import math
 from pathlib import Path
 
 import cv2
@@ -33,8 +34,18 @@ def test_replay_synthetic_writes_one_object_per_frame(
     records = read_lines(out)
     assert [r["seq"] for r in records] == [0, 1, 2, 3]
     assert [r["t_capture_ns"] for r in records] == [0, 100_000_000, 200_000_000, 300_000_000]
-    for record in records:
-        assert set(record) >= {"seq", "t_capture_ns", "nearest", "sectors_cm", "timing_ms", "truth"}
+    for index, record in enumerate(records):
+        assert set(record) >= {
+            "seq",
+            "t_capture_ns",
+            "nearest",
+            "sectors_cm",
+            "raw_sectors_cm",
+            "obstacles",
+            "pose",
+            "timing_ms",
+            "truth",
+        }
         assert len(record["sectors_cm"]) == 72
         assert set(record["timing_ms"]) == {
             "rectify",
@@ -42,7 +53,7 @@ def test_replay_synthetic_writes_one_object_per_frame(
             "match",
             "post",
             "depth",
-            "sectors",
+            "obstacles",
             "encode",
         }
         truth = record["truth"]
@@ -50,7 +61,20 @@ def test_replay_synthetic_writes_one_object_per_frame(
         assert truth["nearest_m"] == pytest.approx(3.0 - 0.5, rel=0.05)
         assert nearest["distance_m"] == pytest.approx(truth["nearest_m"], rel=0.03)
         truth_bin = round(truth["nearest_bearing_deg"] / 5) % 72
-        assert record["sectors_cm"][truth_bin] == pytest.approx(truth["nearest_m"] * 100, rel=0.03)
+        raw = record["raw_sectors_cm"][truth_bin]
+        assert raw == pytest.approx(truth["nearest_m"] * 100, rel=0.03)
+        # A new obstacle waits for a second frame (2 of 3) before it is sent; until then its
+        # bin is unknown, neither clear nor an obstacle.
+        assert record["sectors_cm"][truth_bin] == (65535 if index == 0 else raw)
+        obstacle = record["obstacles"][0]
+        assert obstacle["distance_m"] == pytest.approx(truth["nearest_m"], rel=0.03)
+        # Across the line of sight the box (0.8 wide, 1 deep, centre 14.9 deg left) shows its
+        # front and one side: 0.8 cos + 1.0 sin of that angle.
+        seen_at = math.atan2(0.8, 3.0)
+        expected_width = 0.8 * math.cos(seen_at) + 1.0 * math.sin(seen_at)
+        assert obstacle["width_m"] == pytest.approx(expected_width, rel=0.1)
+        assert obstacle["height_m"] > 1.5  # the 3 m box, seen from 1.5 m up, minus the margin
+        assert record["pose"]["height_m"] == 1.5 and record["pose"]["source"] == "synthetic"
     assert "nearest vs truth: median error" in capsys.readouterr().out
 
 

@@ -7,17 +7,17 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from avoidd.config import SectorsConfig
+from avoidd.config import HistogramConfig, PerceptionConfig, SectorsConfig
 from avoidd.mavlink.messages import UNKNOWN_CM, sectors_to_cm
+from avoidd.perception.perceive import perceive
 from avoidd.perception.sectors import (
     bin_of_bearing,
     column_bearings_deg,
     covered_bins,
     merge_scans,
     nearest_cluster_m,
-    sector_scan,
 )
-from avoidd.types import Mount, RectifiedRig, SectorScan, bin_bearing_deg, wrap_deg
+from avoidd.types import FramePose, Mount, RectifiedRig, SectorScan, bin_bearing_deg, wrap_deg
 
 RIG = RectifiedRig(640, 480, 400.0, 400.0, 319.5, 239.5, 0.12, 0.0)
 PARAMS = SectorsConfig()
@@ -40,9 +40,20 @@ def put_obstacle(depth: np.ndarray, bearing_deg: float, range_m: float, width_px
 
 
 def scan_of(depth: np.ndarray, mount: Mount | None = None) -> np.ndarray:
-    scan = sector_scan(depth, RIG, mount or Mount(), PARAMS, MAX_RANGE_M, 123)
-    assert scan.t_capture_ns == 123
-    return scan.distance_m
+    """The scan of a depth map seen by a level vehicle whose body origin is 1.5 m up."""
+    seen = perceive(
+        depth,
+        RIG,
+        mount or Mount(),
+        FramePose(0.0, 0.0, 1.5),
+        PerceptionConfig(),
+        PARAMS,
+        HistogramConfig(),
+        MAX_RANGE_M,
+        123,
+    )
+    assert seen.scan.t_capture_ns == 123
+    return seen.scan.distance_m
 
 
 def test_bin_geometry() -> None:
@@ -177,10 +188,17 @@ def test_merge_takes_nearest_and_keeps_unknown_where_nobody_sees() -> None:
     a[0], b[0] = 5.0, 3.0
     a[1], b[1] = np.inf, 4.0
     a[2] = np.inf
-    merged = merge_scans([SectorScan(10, a), SectorScan(20, b)])
-    assert merged.t_capture_ns == 10
+    points_a = np.full((72, 3), np.nan, dtype=np.float32)
+    points_b = np.full((72, 3), np.nan, dtype=np.float32)
+    points_a[0], points_b[0] = (5.0, 0.0, 0.0), (3.0, 0.0, 0.0)
+    merged = merge_scans([SectorScan(10, a, points_a), SectorScan(20, b, points_b)])
+    assert merged.t_capture_ns == 20
     assert merged.distance_m[0] == 3.0 and merged.distance_m[1] == 4.0
     assert merged.distance_m[2] == np.inf and np.isnan(merged.distance_m[3])
+    # Each bin keeps the capture time and the point of the reading it took.
+    assert merged.reading_t_ns is not None and merged.points_frd_m is not None
+    assert list(merged.reading_t_ns[:3]) == [20, 20, 10]
+    assert list(merged.points_frd_m[0]) == [3.0, 0.0, 0.0]
     assert np.isnan(merge_scans([]).distance_m).all()
 
 

@@ -15,7 +15,7 @@ from avoidd.sources.files import FolderSource, SideBySideVideoSource, open_files
 from avoidd.sources.synthetic import SyntheticSource, scene_at
 from avoidd.sources.truth import nearest_obstacle
 from avoidd.sources.v4l2 import V4l2Source
-from avoidd.types import Mount, RectifiedRig
+from avoidd.types import FramePose, Mount, RectifiedRig
 
 RIG = RectifiedRig(160, 120, 100.0, 100.0, 79.5, 59.5, 0.12, 0.0)
 
@@ -206,7 +206,7 @@ def test_synthetic_static_scene_is_reproducible_with_fresh_noise() -> None:
     assert not np.array_equal(fa.left, second.left)  # the sensor noise changes
     assert np.abs(fa.left.astype(int) - second.left.astype(int)).mean() < 4
     assert fa.truth is not None
-    nearest = nearest_obstacle(fa.truth, Mount(), (0.3, 0.5))
+    nearest = nearest_obstacle(fa.truth, Mount(), FramePose(0.0, 0.0, 1.5))
     assert nearest is not None
     assert nearest.distance_m == pytest.approx(4.5, abs=0.02)
     assert abs(nearest.bearing_deg) < 1.0
@@ -219,7 +219,7 @@ def test_synthetic_obstacles_approach_and_loop() -> None:
     for _ in range(14):
         frame = source.read()
         assert frame.truth is not None
-        nearest = nearest_obstacle(frame.truth, Mount(), (0.3, 0.5))
+        nearest = nearest_obstacle(frame.truth, Mount(), FramePose(0.0, 0.0, 1.5))
         assert nearest is not None
         distances.append(nearest.distance_m)
     # 2 m/s at 10 fps: 0.2 m per frame until the box front reaches 2 m, then it starts over.
@@ -233,7 +233,7 @@ def test_synthetic_truth_follows_the_mount() -> None:
     frame = SyntheticSource(synthetic_config(), RIG, paced=False).read()
     assert frame.truth is not None
     nearest = nearest_obstacle(
-        frame.truth, Mount(yaw_deg=90.0, position_m=(0.0, 0.2, 0.0)), (0.3, 0.5)
+        frame.truth, Mount(yaw_deg=90.0, position_m=(0.0, 0.2, 0.0)), FramePose(0.0, 0.0, 1.5)
     )
     assert nearest is not None
     assert nearest.bearing_deg == pytest.approx(90.0, abs=1.5)

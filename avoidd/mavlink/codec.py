@@ -204,6 +204,28 @@ class Codec:
             signal_quality,
         )
 
+    def obstacle_distance_3d(
+        self,
+        time_boot_ms: int,
+        point_frd_m: Iterable[float],
+        min_m: float,
+        max_m: float,
+        obstacle_id: int = 65535,
+    ) -> Message:
+        """An OBSTACLE_DISTANCE_3D: one obstacle point in BODY_FRD, metres (id unknown)."""
+        x, y, z = (float(v) for v in point_frd_m)
+        return self._mav.obstacle_distance_3d_encode(
+            time_boot_ms,
+            MAV_DISTANCE_SENSOR_UNKNOWN,
+            MAV_FRAME_BODY_FRD,
+            obstacle_id,
+            x,
+            y,
+            z,
+            min_m,
+            max_m,
+        )
+
     def build(self, name: str, *fields: Any) -> Message:
         """Build any message of the dialect by name and fields (used by the mock autopilot)."""
         encoder = getattr(self._mav, f"{name.lower()}_encode")

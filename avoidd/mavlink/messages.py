@@ -2,11 +2,50 @@
 
 from __future__ import annotations
 
+import math
+from dataclasses import dataclass
+
 import numpy as np
 
-from avoidd.types import SectorScan
+from avoidd.mavlink.codec import Codec, Message
+from avoidd.perception.frames import mount_quaternion
+from avoidd.perception.sectors import covered_bins
+from avoidd.types import FloatArray, Mount, RectifiedRig, SectorScan
 
 UNKNOWN_CM = 65535
+
+MAV_SENSOR_ROTATION_PITCH_90 = 24
+"""Pointing up."""
+MAV_SENSOR_ROTATION_PITCH_270 = 25
+"""Pointing down."""
+_ORIENTATION_TOLERANCE_DEG = 2.5
+
+
+def sensor_orientation(mount: Mount) -> int | None:
+    """The MAV_SENSOR_ORIENTATION of a head, or None when no enum value names its direction.
+
+    ``MAV_SENSOR_ROTATION_YAW_45 * k`` (k = 0..7) means turned 45*k degrees clockwise (to the
+    right) seen from above, for ArduPilot and PX4 alike; pitch 90 is up and pitch 270 down.
+    A mount is accepted within 2.5 degrees of one of these directions (roll about the
+    viewing axis does not change where a range sensor points).
+
+    Args:
+        mount: The head's mount.
+
+    Returns:
+        The enum value (0..7, 24 or 25), or None.
+    """
+    if abs(mount.pitch_deg - 90.0) <= _ORIENTATION_TOLERANCE_DEG:
+        return MAV_SENSOR_ROTATION_PITCH_90
+    if abs(mount.pitch_deg + 90.0) <= _ORIENTATION_TOLERANCE_DEG:
+        return MAV_SENSOR_ROTATION_PITCH_270
+    if abs(mount.pitch_deg) > _ORIENTATION_TOLERANCE_DEG:
+        return None
+    steps = mount.yaw_deg / 45.0
+    k = round(steps)
+    if abs(steps - k) * 45.0 > _ORIENTATION_TOLERANCE_DEG:
+        return None
+    return k % 8
 
 
 def sectors_to_cm(scan: SectorScan, min_cm: int, max_cm: int) -> list[int]:
@@ -34,3 +73,80 @@ def sectors_to_cm(scan: SectorScan, min_cm: int, max_cm: int) -> list[int]:
 def unknown_cm() -> list[int]:
     """72 unknown bins (stale or missing data)."""
     return [UNKNOWN_CM] * 72
+
+
+@dataclass(frozen=True)
+class DistanceSensorHead:
+    """A head seen as a DISTANCE_SENSOR: its orientation, field of view and id.
+
+    Args:
+        rig: The rig of the head's depth maps.
+        mount: The head's mount (its orientation must have an enum value; the config loader
+            checks this when DISTANCE_SENSOR is on).
+        sensor_id: The sensor id (the head's index).
+    """
+
+    rig: RectifiedRig
+    mount: Mount
+    sensor_id: int
+
+    def reading_cm(self, scan: SectorScan, min_cm: int, max_cm: int) -> int | None:
+        """The head's nearest obstacle in its own field of view, in centimetres.
+
+        Returns:
+            The nearest finite bin clamped into ``[min_cm, max_cm]``; ``max_cm + 1`` (out of
+            range) when every bin of the field of view is clear; None when some bin is
+            unknown and none holds an obstacle, because then nothing can be vouched for.
+        """
+        own = scan.distance_m[covered_bins(self.rig, self.mount)]
+        finite = own[np.isfinite(own)]
+        if finite.size:
+            return int(np.clip(np.rint(float(finite.min()) * 100.0), min_cm, max_cm))
+        if own.size and np.isposinf(own).all():
+            return max_cm + 1
+        return None
+
+    def message(
+        self,
+        codec: Codec,
+        time_boot_ms: int,
+        current_cm: int,
+        min_cm: int,
+        max_cm: int,
+        valid_fraction: float,
+    ) -> Message:
+        """The DISTANCE_SENSOR for a reading.
+
+        The orientation is the enum value of the mount and the quaternion the mount itself;
+        the signal quality is the share of pixels with a measurement, as 1 (worst) to 100
+        (0 would mean unknown).
+        """
+        orientation = sensor_orientation(self.mount)
+        if orientation is None:
+            raise ValueError(f"mount {self.mount} has no MAV_SENSOR_ORIENTATION")
+        vertical_fov = 2.0 * math.atan(self.rig.height / (2.0 * self.rig.fy))
+        return codec.distance_sensor(
+            time_boot_ms,
+            min_cm,
+            max_cm,
+            current_cm,
+            orientation,
+            horizontal_fov_rad=math.radians(self.rig.hfov_deg),
+            vertical_fov_rad=vertical_fov,
+            quaternion=mount_quaternion(self.mount),
+            signal_quality=max(1, min(100, round(100.0 * valid_fraction))),
+            sensor_id=self.sensor_id,
+        )
+
+
+def nearest_points(scan: SectorScan, count: int) -> list[FloatArray]:
+    """The body-frame points of the ``count`` nearest finite bins of a scan, nearest first."""
+    if scan.points_frd_m is None:
+        return []
+    distance = np.where(np.isfinite(scan.distance_m), scan.distance_m, np.inf)
+    order = np.argsort(distance, kind="stable")[:count]
+    return [
+        scan.points_frd_m[i]
+        for i in order
+        if np.isfinite(distance[i]) and np.all(np.isfinite(scan.points_frd_m[i]))
+    ]

@@ -223,6 +223,15 @@ class Vehicle:
         """``time_usec`` for a message about an event at ``local_ns`` (see :class:`ClockSync`)."""
         return self.clock.time_usec(local_ns)
 
+    def time_boot_ms(self, local_ns: int) -> int:
+        """``time_boot_ms`` for a message about an event at ``local_ns``.
+
+        On the autopilot's boot clock once it is known (so the autopilot can relate the reading
+        to its own data), else on avoidd's monotonic clock; wrapped to 32 bits.
+        """
+        boot_ns = self.clock.to_autopilot_boot_ns(local_ns)
+        return ((boot_ns if boot_ns is not None else local_ns) // 1_000_000) % (1 << 32)
+
     @property
     def streams_acknowledged(self) -> bool:
         """Whether every requested stream was acknowledged (or refused) since the link came up."""

@@ -53,77 +53,81 @@ def covered_bins(rig: RectifiedRig, mount: Mount) -> npt.NDArray[np.bool_]:
     return np.asarray(offset <= (last - first), dtype=np.bool_)
 
 
-def band_rows(height: int, row_band: tuple[float, float]) -> tuple[int, int]:
-    """First and end row of a band given as fractions of the image height (never empty)."""
-    top = min(math.floor(row_band[0] * height), height - 1)
-    return top, max(math.ceil(row_band[1] * height), top + 1)
-
-
 def bin_of_bearing(bearing_deg: npt.NDArray[np.floating] | float) -> IntArray:
     """Sector index of a bearing (bin i covers i*5 +- 2.5 degrees)."""
     index = np.floor(np.asarray(bearing_deg, dtype=np.float64) / SECTOR_WIDTH_DEG + 0.5)
     return np.mod(index, SECTOR_COUNT).astype(np.int64)
 
 
+class Candidates(NamedTuple):
+    """Obstacle points of one frame of one head (ground and out-of-band points removed).
+
+    Attributes:
+        forward_m: Level-frame forward coordinate from the body origin, (N,).
+        right_m: Level-frame right coordinate, (N,).
+        points_frd_m: The same points in body FRD, (N, 3).
+    """
+
+    forward_m: FloatArray
+    right_m: FloatArray
+    points_frd_m: FloatArray
+
+
 def sector_scan(
-    depth_m: FloatArray,
+    candidates: Candidates,
+    valid_per_column: npt.NDArray[np.integer],
+    rows: int,
     rig: RectifiedRig,
     mount: Mount,
     params: SectorsConfig,
-    max_range_m: float,
     t_capture_ns: int,
 ) -> SectorScan:
-    """Reduce a depth map to the 72-bin distance grid of one head.
+    """Reduce one head's obstacle points to the 72-bin distance grid.
 
-    Every pixel of the configured row band counts. A bin reports its nearest cluster of at least
-    ``min_pixels`` pixels (see :func:`nearest_cluster_m`); without one it is clear when enough of
-    its pixels are valid, else unknown. Bins outside the field of view are unknown.
+    Every point counts. A bin reports its nearest cluster of at least ``min_pixels`` points
+    (see :func:`nearest_cluster_m`), measured horizontally from the body origin in the level
+    frame; without one it is clear when enough of the pixels of its image columns were
+    measured, else unknown. Bins outside the field of view are unknown.
 
     Args:
-        depth_m: Depth along the optical axis, NaN invalid, ``inf`` at infinity.
-        rig: The rectified rig.
-        mount: The head's mount (yaw and horizontal position are applied).
-        params: Band and robustness parameters.
-        max_range_m: Readings at or beyond this range count as clear.
+        candidates: The obstacle points (already limited to the sensor's maximum range).
+        valid_per_column: (W,) measured pixels per image column (any surface, ground too).
+        rows: Pixels per column.
+        rig: The rectified rig of the depth map.
+        mount: The head's mount.
+        params: Robustness parameters.
         t_capture_ns: Capture time of the frame, carried into the scan.
 
     Returns:
-        The scan: metres, NaN unknown, ``inf`` clear.
+        The scan: metres, NaN unknown, ``inf`` clear, with the body point of each finite bin.
     """
-    top, bottom = band_rows(depth_m.shape[0], params.row_band)
-    band = depth_m[top:bottom, :]
     columns = _column_geometry(rig, mount)
-
-    finite = np.isfinite(band)
-    z = np.where(finite, band, np.float32(0.0))
-    forward = z * columns.ray_forward[None, :] + np.float32(mount.position_m[0])
-    right = z * columns.ray_right[None, :] + np.float32(mount.position_m[1])
-    range_m = np.hypot(forward, right)
-    near = finite & (range_m < max_range_m)
-    near_forward, near_right = forward[near], right[near]
-
-    # Pixel counts per bin go through the columns (W values, not W x H).
-    valid_per_column = np.count_nonzero(~np.isnan(band), axis=0)
-    total = np.bincount(columns.bins, minlength=SECTOR_COUNT) * band.shape[0]
+    total = np.bincount(columns.bins, minlength=SECTOR_COUNT) * rows
     valid_count = np.bincount(columns.bins, weights=valid_per_column, minlength=SECTOR_COUNT)
 
+    range_m = np.hypot(candidates.forward_m, candidates.right_m)
     focal_baseline = np.float32(rig.fx * rig.baseline_m)
-    nearest = nearest_cluster_m(
-        bin_of_bearing(np.degrees(np.arctan2(near_right, near_forward))),
-        focal_baseline / range_m[near],
+    nearest, picked = nearest_cluster(
+        bin_of_bearing(np.degrees(np.arctan2(candidates.right_m, candidates.forward_m))),
+        (focal_baseline / np.maximum(range_m, np.float32(1e-3))).astype(np.float32),
         focal_baseline,
         params.min_pixels,
         params.cluster_window_px,
+        params.min_size_m / rig.baseline_m,
     )
     has_obstacle = np.isfinite(nearest)
     distance = nearest.astype(np.float32)
+    points = np.full((SECTOR_COUNT, 3), np.nan, dtype=np.float32)
+    points[has_obstacle] = candidates.points_frd_m[picked[has_obstacle]]
 
     with np.errstate(invalid="ignore", divide="ignore"):
         valid_fraction = np.where(total > 0, valid_count / np.maximum(total, 1), 0.0)
     clear = ~has_obstacle & (total > 0) & (valid_fraction >= params.min_valid_fraction)
     distance[clear] = np.inf
-    distance[~columns.covered] = np.nan
-    return SectorScan(t_capture_ns, distance)
+    outside = ~columns.covered
+    distance[outside] = np.nan
+    points[outside] = np.nan
+    return SectorScan(t_capture_ns, distance, points)
 
 
 class _Columns(NamedTuple):
@@ -155,58 +159,75 @@ def nearest_cluster_m(
     focal_baseline: float | np.float32,
     min_pixels: int,
     window_px: float,
+    min_size_px_per_px: float = 0.0,
 ) -> FloatArray:
-    """Distance of the nearest dense cluster of points in every bin.
+    """Distance of the nearest dense cluster of points in every bin (see :func:`nearest_cluster`).
+
+    Returns:
+        (72,) distances in metres, NaN where a bin has no cluster.
+    """
+    return nearest_cluster(
+        bins, disparity_px, focal_baseline, min_pixels, window_px, min_size_px_per_px
+    )[0]
+
+
+def nearest_cluster(
+    bins: IntArray,
+    disparity_px: FloatArray,
+    focal_baseline: float | np.float32,
+    min_pixels: int,
+    window_px: float,
+    min_size_px_per_px: float = 0.0,
+) -> tuple[FloatArray, IntArray]:
+    """Distance of the nearest dense cluster of points in every bin, and the point it reports.
 
     Working in disparity (where stereo noise is about constant), a bin's cluster starts at the
-    largest disparity that has at least ``min_pixels`` points within ``window_px`` below it. The
-    bin reports the point a quarter of the way into that window from its near end: close to the
-    nearest surface when the window spans an oblique face, and barely moved by noise when it
-    holds one compact surface. Fewer than ``min_pixels`` stray points (speckle) cannot form a
-    cluster, while a thin pole in front of a wall still does.
+    largest disparity ``d`` that has enough points within ``window_px`` below it: at least
+    ``min_pixels``, and at least the pixel area of a square ``min_size_px_per_px * d`` pixels
+    on a side. That square is an object of a fixed size in metres (its side in pixels is
+    ``f * size / Z = size / B * d``), so near clusters must be as large as a small real object
+    there, and a few stray or edge-smeared pixels cannot pass for one. The bin reports the point
+    a quarter of the way into that window from its near end: close to the nearest surface when
+    the window spans an oblique face, and barely moved by noise when it holds one surface.
 
     Args:
         bins: Sector index of every point.
         disparity_px: Disparity-equivalent ``f * B / range`` of every point (> 0).
         focal_baseline: ``f * B`` in pixel metres, to turn disparity back into range.
-        min_pixels: Points a cluster needs.
+        min_pixels: Points a cluster needs at any distance.
         window_px: Width of the cluster window in disparity pixels.
+        min_size_px_per_px: ``size / B``: the side, in pixels per pixel of disparity, of the
+            square a cluster must cover (0: no size rule).
 
     Returns:
-        (72,) distances in metres, NaN where a bin has no cluster.
+        (72,) distances in metres (NaN where a bin has no cluster) and (72,) the index of the
+        reported point in the input (-1 where none).
     """
     distance = np.full(SECTOR_COUNT, np.nan, dtype=np.float32)
+    chosen = np.full(SECTOR_COUNT, -1, dtype=np.int64)
     if bins.size < min_pixels:
-        return distance
-    # One sort orders points by bin, then by decreasing disparity (nearest first).
-    span = float(np.max(disparity_px)) + 1.0
-    keys = np.sort(bins.astype(np.float64) * span + (span - disparity_px.astype(np.float64)))
-    sorted_bins = np.floor(keys / span).astype(np.int64)
-    sorted_disp = span - (keys - sorted_bins * span)
-    last = sorted_bins.size - min_pixels + 1
-    if last <= 0:
-        return distance
-    dense = (sorted_bins[:last] == sorted_bins[min_pixels - 1 :]) & (
-        sorted_disp[:last] - sorted_disp[min_pixels - 1 :] <= window_px
-    )
-    seeds = np.flatnonzero(dense)
-    if seeds.size == 0:
-        return distance
-    seed_bins = sorted_bins[seeds]
-    first = np.flatnonzero(np.diff(seed_bins, prepend=-1) != 0)
-    seeds = seeds[first]
-    seed_bins = seed_bins[first]
-    # Window members are contiguous after the seed: same bin, disparity within the window.
-    seed_of_point = np.full(SECTOR_COUNT, -1, dtype=np.int64)
-    seed_of_point[seed_bins] = seeds
-    point_seed = seed_of_point[sorted_bins]
-    index = np.arange(sorted_bins.size)
-    member = (point_seed >= 0) & (index >= point_seed)
-    member &= sorted_disp >= sorted_disp[np.maximum(point_seed, 0)] - window_px
-    counts = np.bincount(sorted_bins[member], minlength=SECTOR_COUNT)[seed_bins]
-    picked = sorted_disp[seeds + (counts - 1) // 4]
-    distance[seed_bins] = (np.float32(focal_baseline) / picked).astype(np.float32)
-    return distance
+        return distance, chosen
+    # One sort orders points by bin, then by decreasing disparity (nearest first); a key
+    # that grows along that order lets a binary search count each point's window.
+    span = float(np.max(disparity_px)) + window_px + 1.0
+    keys = bins.astype(np.float64) * span + (span - disparity_px.astype(np.float64))
+    order = np.argsort(keys, kind="stable")
+    keys = keys[order]
+    sorted_bins = bins[order]
+    sorted_disp = disparity_px[order].astype(np.float64)
+    counts = np.searchsorted(keys, keys + window_px, side="right") - np.arange(keys.size)
+    needed = np.maximum(float(min_pixels), (min_size_px_per_px * sorted_disp) ** 2)
+    dense = np.flatnonzero(counts >= needed)
+    if dense.size == 0:
+        return distance, chosen
+    dense_bins = sorted_bins[dense]
+    first = np.flatnonzero(np.diff(dense_bins, prepend=-1) != 0)
+    seeds = dense[first]
+    seed_bins = dense_bins[first]
+    picked = seeds + (counts[seeds] - 1) // 4
+    distance[seed_bins] = (np.float32(focal_baseline) / sorted_disp[picked]).astype(np.float32)
+    chosen[seed_bins] = order[picked]
+    return distance, chosen
 
 
 def merge_scans(scans: list[SectorScan]) -> SectorScan:
@@ -216,10 +237,24 @@ def merge_scans(scans: list[SectorScan]) -> SectorScan:
         scans: One scan per head (at least one).
 
     Returns:
-        The merged scan, stamped with the oldest capture time of its inputs.
+        The merged scan, stamped with the newest capture time of its inputs; each bin keeps
+        the capture time of the reading it took.
     """
     if not scans:
         return SectorScan.unknown()
+    if len(scans) == 1:
+        return scans[0]
     stacked = np.stack([scan.distance_m for scan in scans])
-    merged = np.fmin.reduce(stacked, axis=0).astype(np.float32)
-    return SectorScan(min(scan.t_capture_ns for scan in scans), merged)
+    # NaN sorts last, so the nearest reading wins and unknown only where every head is.
+    winner = np.argmin(np.where(np.isnan(stacked), np.inf, stacked), axis=0)
+    winner = np.where(np.all(np.isnan(stacked), axis=0), 0, winner)
+    columns = np.arange(SECTOR_COUNT)
+    merged = stacked[winner, columns].astype(np.float32)
+    # inf (clear) beats NaN (unknown) where no head has a reading.
+    merged = np.where(np.isnan(merged), np.fmin.reduce(stacked, axis=0), merged)
+    times = np.stack([scan.times_ns() for scan in scans])[winner, columns]
+    points = None
+    if all(scan.points_frd_m is not None for scan in scans):
+        stacked_points = np.stack([scan.points_frd_m for scan in scans])  # type: ignore[misc]
+        points = stacked_points[winner, columns].astype(np.float32)
+    return SectorScan(max(scan.t_capture_ns for scan in scans), merged, points, times)

@@ -1,7 +1,8 @@
 """Ray-cast rendering of a synthetic outdoor scene as a rectified stereo pair with exact depth.
 
-The world frame is the rig's own: X forward, Y right, Z down, ground at Z = 0, the left camera at
-(0, 0, -h) and the right camera at (0, B, -h), both pitched by the same angle. The scene holds
+The world frame is the rig's level frame: X forward, Y right, Z down, ground at Z = 0, the left
+camera at (0, 0, -h) and the right camera one baseline along its own x axis; both share the
+rig's pitch and the vehicle's roll and pitch. The scene holds
 textured ground, boxes and poles standing on it, an optional far tree line (a cylinder around the
 rig) and sky at infinity. Textures are procedural value noise defined on the surfaces in metres and
 band-limited to the pixel footprint, so both views see the same surface pattern without aliasing.
@@ -10,14 +11,14 @@ band-limited to the pixel footprint, so both views see the same surface pattern 
 from __future__ import annotations
 
 import functools
-import math
 from dataclasses import dataclass
 from typing import NamedTuple
 
 import numpy as np
 import numpy.typing as npt
 
-from avoidd.types import FloatArray, GroundTruth, Image, RectifiedRig
+from avoidd.perception.frames import camera_to_level
+from avoidd.types import FloatArray, GroundTruth, Image, Mount, RectifiedRig
 
 BoolArray = npt.NDArray[np.bool_]
 Indices = npt.NDArray[np.intp]
@@ -66,6 +67,9 @@ class Scene:
         obstacles: Boxes and poles; obstacle ``i`` gets object id ``FIRST_OBSTACLE_ID + i``.
         backdrop_m: Radius of the tree line around the rig, or None for open sky.
         seed: Seed of the textures.
+        vehicle_roll_deg: Roll of the vehicle carrying the rig (positive right side down).
+        vehicle_pitch_deg: Pitch of the vehicle (positive nose up), applied after the rig's
+            own pitch: the camera looks along the mount pitch turned by the vehicle attitude.
     """
 
     camera_height_m: float
@@ -73,6 +77,8 @@ class Scene:
     obstacles: tuple[Box | Pole, ...]
     backdrop_m: float | None
     seed: int
+    vehicle_roll_deg: float = 0.0
+    vehicle_pitch_deg: float = 0.0
 
 
 class RenderedPair(NamedTuple):
@@ -115,30 +121,37 @@ class _Hits:
         self.normal[index] = normal[closer] if normal.ndim == 2 else normal
 
 
-def camera_rotation(pitch_deg: float) -> FloatArray:
+def camera_rotation(
+    pitch_deg: float, vehicle_roll_deg: float = 0.0, vehicle_pitch_deg: float = 0.0
+) -> FloatArray:
     """Rotation from the optical frame (x right, y down, z forward) to the rig's world frame.
 
     Args:
-        pitch_deg: Rig pitch, positive up.
+        pitch_deg: Mount pitch of the rig, positive up.
+        vehicle_roll_deg: Vehicle roll, positive right side down.
+        vehicle_pitch_deg: Vehicle pitch, positive nose up.
 
     Returns:
         3x3 float32 matrix.
     """
-    optical_to_frd = np.array([[0.0, 0.0, 1.0], [1.0, 0.0, 0.0], [0.0, 1.0, 0.0]])
-    p = math.radians(pitch_deg)
-    pitch = np.array(
-        [[math.cos(p), 0.0, math.sin(p)], [0.0, 1.0, 0.0], [-math.sin(p), 0.0, math.cos(p)]]
-    )
-    return np.asarray(pitch @ optical_to_frd, dtype=np.float32)
+    pose = camera_to_level(Mount(pitch_deg=pitch_deg), vehicle_roll_deg, vehicle_pitch_deg)
+    return np.asarray(pose.rotation, dtype=np.float32)
 
 
 @functools.lru_cache(maxsize=8)
-def pixel_rays(rig: RectifiedRig, pitch_deg: float) -> FloatArray:
+def pixel_rays(
+    rig: RectifiedRig,
+    pitch_deg: float,
+    vehicle_roll_deg: float = 0.0,
+    vehicle_pitch_deg: float = 0.0,
+) -> FloatArray:
     """World-frame ray of every pixel, scaled so that the ray parameter is the optical depth.
 
     Args:
         rig: The rectified rig.
         pitch_deg: Rig pitch, positive up.
+        vehicle_roll_deg: Vehicle roll, positive right side down.
+        vehicle_pitch_deg: Vehicle pitch, positive nose up.
 
     Returns:
         (H*W, 3) float32 directions.
@@ -152,7 +165,8 @@ def pixel_rays(rig: RectifiedRig, pitch_deg: float) -> FloatArray:
         ],
         axis=-1,
     ).reshape(-1, 3)
-    rays: FloatArray = optical @ camera_rotation(pitch_deg).T
+    rotation = camera_rotation(pitch_deg, vehicle_roll_deg, vehicle_pitch_deg)
+    rays: FloatArray = optical @ rotation.T
     rays.flags.writeable = False  # shared between frames through the cache
     return rays
 
@@ -447,10 +461,12 @@ def render_pair(scene: Scene, rig: RectifiedRig) -> RenderedPair:
     """
     if rig.doffs_px != 0.0:
         raise ValueError("the synthetic renderer needs a rig with doffs = 0")
-    rays = pixel_rays(rig, scene.camera_pitch_deg)
-    rotation = camera_rotation(scene.camera_pitch_deg)
+    attitude = (scene.camera_pitch_deg, scene.vehicle_roll_deg, scene.vehicle_pitch_deg)
+    rays = pixel_rays(rig, *attitude)
+    rotation = camera_rotation(*attitude)
     left_origin = np.array([0.0, 0.0, -scene.camera_height_m], dtype=np.float32)
-    right_origin = np.array([0.0, rig.baseline_m, -scene.camera_height_m], dtype=np.float32)
+    # The right camera sits one baseline along the optical x axis, wherever that points.
+    right_origin = left_origin + np.float32(rig.baseline_m) * rotation[:, 0]
     left, hits = _render_view(scene, rig, rays, left_origin, rotation)
     right, _ = _render_view(scene, rig, rays, right_origin, rotation)
     depth = hits.t.reshape(rig.height, rig.width)

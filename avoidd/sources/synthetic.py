@@ -10,7 +10,7 @@ import numpy as np
 from avoidd.config import SyntheticSourceConfig
 from avoidd.sources.base import Pacer
 from avoidd.sources.scene import Box, Pole, RenderedPair, Scene, render_pair, to_uint8
-from avoidd.types import FloatArray, RectifiedRig, StereoFrame
+from avoidd.types import FloatArray, FramePose, RectifiedRig, StereoFrame
 
 logger = logging.getLogger(__name__)
 
@@ -49,6 +49,8 @@ def scene_at(config: SyntheticSourceConfig, t_s: float) -> Scene:
         obstacles=tuple(obstacles),
         backdrop_m=config.backdrop_m,
         seed=config.seed,
+        vehicle_roll_deg=config.vehicle_roll_deg,
+        vehicle_pitch_deg=config.vehicle_pitch_deg,
     )
 
 
@@ -101,6 +103,13 @@ class SyntheticSource:
             left=to_uint8(rendered.left, self._noise(rng, rendered.left.shape)),
             right=to_uint8(rendered.right, self._noise(rng, rendered.right.shape)),
             truth=rendered.truth,
+            pose=FramePose(
+                self._config.vehicle_roll_deg,
+                self._config.vehicle_pitch_deg,
+                self._config.camera_height_m,
+                "synthetic",
+                "synthetic",
+            ),
         )
 
     def read(self) -> StereoFrame:

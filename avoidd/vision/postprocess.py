@@ -159,3 +159,55 @@ def fill_holes(disparity_px: FloatArray) -> FloatArray:
     right_value = padded[rows, np.minimum(from_right, width)]
     guess = np.fmin(left_value, right_value)
     return np.asarray(np.where(valid, disparity_px, guess), np.float32)
+
+
+_NOISE_KERNEL = np.array([[1.0, -2.0, 1.0], [-2.0, 4.0, -2.0], [1.0, -2.0, 1.0]], dtype=np.float32)
+
+
+def noise_sigma(grey: Image) -> float:
+    """Standard deviation of the sensor noise of an image (Immerkaer's fast estimate).
+
+    The 3x3 kernel is the difference of two Laplacians, which cancels image structure up to
+    second order and leaves the noise; the mean absolute response scaled by sqrt(pi/2)/6 is
+    the noise standard deviation for Gaussian noise. Strong edges bias it slightly upward.
+
+    Args:
+        grey: An 8-bit grey image (at least 3x3).
+
+    Returns:
+        The estimate in grey levels.
+    """
+    response = cv2.filter2D(grey.astype(np.float32), -1, _NOISE_KERNEL)[1:-1, 1:-1]
+    return float(np.sqrt(np.pi / 2.0) / 6.0 * np.mean(np.abs(response)))
+
+
+def texture_gate(grey: Image, window_px: int, min_snr: float) -> npt.NDArray[np.bool_]:
+    """Pixels with more texture along the epipolar line than the sensor noise alone would give.
+
+    Texture is the grey-level variance along each row segment of ``window_px`` pixels,
+    averaged over the ``window_px`` rows of the window; a pixel passes when it is at least
+    ``min_snr`` squared times what pure noise gives (see :func:`noise_sigma`). Only texture
+    along the row can fix a disparity: smooth regions (sky, blank walls) and horizontal
+    stripes (far ground seen at a grazing angle) match equally well at many disparities, and
+    a matcher's answer there is a guess, often smoothly propagated from the surroundings
+    (SGBM) and dense enough to pass for an obstacle. The threshold follows each frame's own
+    noise, not a fixed grey level.
+
+    Args:
+        grey: The rectified left view the disparity belongs to.
+        window_px: Side of the window (odd).
+        min_snr: Required ratio of local row-wise standard deviation to noise.
+
+    Returns:
+        (H, W) mask, True where the image carries texture along its rows.
+    """
+    image = grey.astype(np.float32)
+    along = (window_px, 1)
+    across = (1, window_px)
+    border = cv2.BORDER_REFLECT
+    mean = cv2.boxFilter(image, -1, along, borderType=border)
+    mean_sq = cv2.boxFilter(image * image, -1, along, borderType=border)
+    variance = cv2.boxFilter(mean_sq - mean * mean, -1, across, borderType=border)
+    sigma = noise_sigma(grey)
+    noise_variance = sigma * sigma * (1.0 - 1.0 / window_px)
+    return np.asarray(variance >= np.float32(min_snr * min_snr * noise_variance), dtype=np.bool_)

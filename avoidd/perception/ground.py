@@ -1,0 +1,166 @@
+"""The ground model: which points are ground or out of the height band; the ground-plane fit."""
+
+from __future__ import annotations
+
+import math
+from typing import NamedTuple
+
+import numpy as np
+import numpy.typing as npt
+
+from avoidd.config import BandConfig, GroundConfig
+from avoidd.perception.frames import Components
+from avoidd.types import BoolArray, FloatArray
+
+Vector = npt.NDArray[np.float64]
+
+
+def obstacle_mask(
+    level: Components,
+    depth_m: FloatArray,
+    focal_baseline: float,
+    camera_down_m: float,
+    height_m: float,
+    ground: GroundConfig,
+    band: BandConfig,
+    max_range_m: float,
+) -> BoolArray:
+    """Pixels whose point may belong to an obstacle.
+
+    A point is kept when it lies within the height band around the body origin, nearer than
+    ``max_range_m`` horizontally, and stands at least ``ground.margin_m`` above the ground plane
+    (``height_m`` below the body origin in the level frame) even when its disparity is taken
+    ``ground.disparity_tolerance_px`` smaller. That tolerance matters far away: one pixel of
+    disparity is a third of the depth at 16 m for a 48 px m rig, so far ground measured a
+    pixel too near rises half a metre above the plane; moved back by the tolerance along its
+    ray it sinks into the ground, while a real obstacle stays above it.
+
+    Args:
+        level: Level-frame coordinates of every pixel.
+        depth_m: The depth map they come from (optical depth).
+        focal_baseline: ``f * B`` of the head in pixel metres.
+        camera_down_m: Level-frame down coordinate of the camera centre.
+        height_m: Height of the body origin above the ground.
+        ground: Ground model parameters.
+        band: Height band parameters.
+        max_range_m: Points at or beyond this horizontal range are left out (they are clear).
+
+    Returns:
+        (H, W) mask.
+    """
+    down = level.down_m
+    camera = np.float32(camera_down_m)
+    with np.errstate(invalid="ignore", divide="ignore"):
+        keep = (down >= np.float32(-band.above_m)) & (down <= np.float32(band.below_m))
+        range_sq = level.forward_m * level.forward_m + level.right_m * level.right_m
+        keep &= range_sq < np.float32(max_range_m * max_range_m)
+        # Moving a point back along its ray to disparity d - tol scales its offset from the
+        # camera by d / (d - tol) = 1 / (1 - tol * Z / fB); past d = tol it goes to infinity.
+        scale = (
+            np.float32(1.0) - np.float32(ground.disparity_tolerance_px / focal_baseline) * depth_m
+        )
+        rise = down - camera
+        far_down = np.where(scale > 0, rise / scale, rise * np.float32(np.inf)) + camera
+        keep &= far_down <= np.float32(height_m - ground.margin_m)
+    return keep
+
+
+def height_from_rangefinder(distance_m: float, roll_deg: float, pitch_deg: float) -> float:
+    """Height above flat ground from a downward rangefinder fixed to the body.
+
+    The beam follows the body's down axis, so a tilted vehicle measures a longer slant.
+
+    Args:
+        distance_m: The rangefinder's reading.
+        roll_deg: Vehicle roll.
+        pitch_deg: Vehicle pitch.
+
+    Returns:
+        The vertical height.
+    """
+    return distance_m * math.cos(math.radians(roll_deg)) * math.cos(math.radians(pitch_deg))
+
+
+class Plane(NamedTuple):
+    """A plane ``normal . p = offset`` (unit normal) and the share of points that fit it.
+
+    Attributes:
+        normal: Unit normal, oriented so that ``offset`` is positive (pointing away from the
+            origin, i.e. from the camera toward the plane).
+        offset_m: Distance of the plane from the origin.
+        inlier_fraction: Share of the points within the fit's threshold.
+        rms_m: RMS distance of the inliers from the plane.
+    """
+
+    normal: Vector
+    offset_m: float
+    inlier_fraction: float
+    rms_m: float
+
+
+def fit_plane(
+    points_m: npt.ArrayLike,
+    threshold_m: float,
+    iterations: int = 300,
+    seed: int = 0,
+) -> Plane:
+    """Fit a plane to 3D points robustly: RANSAC on triples, then least squares on the inliers.
+
+    Args:
+        points_m: (N, 3) points, N >= 3.
+        threshold_m: A point within this distance of the plane is an inlier. Distances grow
+            with range in stereo data, so the RANSAC test scales it by the point's range over
+            the median range.
+        iterations: RANSAC trials.
+        seed: Seed of the trial sampling (the fit is deterministic for given points).
+
+    Returns:
+        The plane.
+
+    Raises:
+        ValueError: Fewer than 3 points or no plane through them.
+    """
+    points = np.asarray(points_m, dtype=np.float64).reshape(-1, 3)
+    points = points[np.all(np.isfinite(points), axis=1)]
+    if points.shape[0] < 3:
+        raise ValueError(f"a plane needs at least 3 points, got {points.shape[0]}")
+    ranges = np.linalg.norm(points, axis=1)
+    tolerance = threshold_m * np.maximum(ranges / max(float(np.median(ranges)), 1e-9), 0.25)
+    rng = np.random.default_rng(seed)
+    best: BoolArray | None = None
+    best_count = -1
+    for _ in range(iterations):
+        a, b, c = points[rng.choice(points.shape[0], 3, replace=False)]
+        normal = np.cross(b - a, c - a)
+        length = float(np.linalg.norm(normal))
+        if length < 1e-12:
+            continue
+        normal /= length
+        inliers = np.abs(points @ normal - float(normal @ a)) <= tolerance
+        count = int(np.count_nonzero(inliers))
+        if count > best_count:
+            best, best_count = inliers, count
+    if best is None or best_count < 3:
+        raise ValueError("no plane fits these points (are they all on one line?)")
+    for _ in range(3):
+        normal, offset = _least_squares_plane(points[best])
+        best = np.abs(points @ normal - offset) <= tolerance
+    normal, offset = _least_squares_plane(points[best])
+    residual = points[best] @ normal - offset
+    return Plane(
+        normal,
+        offset,
+        float(np.count_nonzero(best)) / points.shape[0],
+        float(np.sqrt(np.mean(residual * residual))),
+    )
+
+
+def _least_squares_plane(points: Vector) -> tuple[Vector, float]:
+    """Total least squares plane through points: normal is the smallest singular vector."""
+    centre = points.mean(axis=0)
+    _, _, vt = np.linalg.svd(points - centre, full_matrices=False)
+    normal = vt[-1]
+    offset = float(normal @ centre)
+    if offset < 0:
+        normal, offset = -normal, -offset
+    return normal, offset

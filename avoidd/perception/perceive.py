@@ -1,0 +1,109 @@
+"""One head's depth map to obstacle points, its sector scan and (optionally) its obstacle list."""
+
+from __future__ import annotations
+
+from typing import NamedTuple
+
+import numpy as np
+
+from avoidd.config import HistogramConfig, PerceptionConfig, SectorsConfig
+from avoidd.perception.frames import Matrix, Pose, camera_to_level, depth_to_frame
+from avoidd.perception.ground import obstacle_mask
+from avoidd.perception.obstacles import Obstacle, cluster_obstacles
+from avoidd.perception.sectors import Candidates, sector_scan
+from avoidd.types import FloatArray, FramePose, Mount, RectifiedRig, SectorScan
+
+
+class Perception(NamedTuple):
+    """What one head saw in one frame.
+
+    Attributes:
+        scan: Its 72-bin scan.
+        obstacles: Its obstacles, nearest first (empty unless asked for).
+        candidates: Obstacle points (after ground and band rejection).
+        pose: The attitude and height the frame was interpreted with.
+    """
+
+    scan: SectorScan
+    obstacles: list[Obstacle]
+    candidates: int
+    pose: FramePose
+
+
+def perceive(
+    depth_m: FloatArray,
+    rig: RectifiedRig,
+    mount: Mount,
+    pose: FramePose,
+    config: PerceptionConfig,
+    sectors: SectorsConfig,
+    histogram: HistogramConfig,
+    max_range_m: float,
+    t_capture_ns: int,
+    with_obstacles: bool = False,
+    rectified_from_raw: Matrix | None = None,
+) -> Perception:
+    """Turn a measured depth map into the head's sector scan (and obstacles).
+
+    Args:
+        depth_m: Depth along the optical axis of measured pixels (NaN elsewhere).
+        rig: The rig of the depth map.
+        mount: The head's mount.
+        pose: Vehicle roll, pitch and height above ground at capture.
+        config: Ground, band and clustering parameters.
+        sectors: Per-bin robustness parameters.
+        histogram: Edges of the obstacles' range histograms.
+        max_range_m: Readings at or beyond this horizontal range are clear.
+        t_capture_ns: Capture time of the frame.
+        with_obstacles: Also cluster the points into obstacles.
+        rectified_from_raw: Rotation from the physical left camera to the rectified view
+            (the mount describes the physical camera); identity when None.
+
+    Returns:
+        The head's perception of the frame.
+    """
+    to_level = camera_to_level(mount, pose.roll_deg, pose.pitch_deg)
+    if rectified_from_raw is not None:
+        # Rectified points turn back into the physical camera's frame first.
+        to_level = Pose(to_level.rotation @ rectified_from_raw.T, to_level.translation)
+    level = depth_to_frame(depth_m, rig, to_level)
+    keep = obstacle_mask(
+        level,
+        depth_m,
+        rig.fx * rig.baseline_m,
+        float(to_level.translation[2]),
+        pose.height_m,
+        config.ground,
+        config.band,
+        max_range_m,
+    )
+    forward = level.forward_m[keep]
+    right = level.right_m[keep]
+    down = level.down_m[keep]
+    level_points = np.stack([forward, right, down], axis=1).astype(np.float64)
+    # Body FRD = level turned back by the attitude (the inverse rotation is the transpose).
+    level_from_body = camera_to_level(Mount(), pose.roll_deg, pose.pitch_deg).rotation
+    body = (level_points @ level_from_body).astype(np.float32)
+    valid_per_column = np.count_nonzero(~np.isnan(depth_m), axis=0)  # inf: measured far
+    scan = sector_scan(
+        Candidates(forward, right, body),
+        valid_per_column,
+        depth_m.shape[0],
+        rig,
+        mount,
+        sectors,
+        t_capture_ns,
+    )
+    obstacles: list[Obstacle] = []
+    if with_obstacles:
+        obstacles = cluster_obstacles(
+            forward,
+            right,
+            np.float32(pose.height_m) - down,
+            rig.fx * rig.baseline_m,
+            rig.baseline_m,
+            config.obstacles,
+            sectors,
+            histogram,
+        )
+    return Perception(scan, obstacles, int(forward.size), pose)
