@@ -7,7 +7,13 @@ from typing import NamedTuple
 import numpy as np
 
 from avoidd.config import HistogramConfig, PerceptionConfig, SectorsConfig
-from avoidd.perception.frames import Matrix, Pose, camera_to_level, depth_to_frame
+from avoidd.perception.frames import (
+    Matrix,
+    Pose,
+    body_to_level,
+    camera_to_level,
+    depth_to_frame,
+)
 from avoidd.perception.ground import obstacle_mask
 from avoidd.perception.obstacles import Obstacle, cluster_obstacles
 from avoidd.perception.sectors import Candidates, sector_scan
@@ -82,7 +88,7 @@ def perceive(
     down = level.down_m[keep]
     level_points = np.stack([forward, right, down], axis=1).astype(np.float64)
     # Body FRD = level turned back by the attitude (the inverse rotation is the transpose).
-    level_from_body = camera_to_level(Mount(), pose.roll_deg, pose.pitch_deg).rotation
+    level_from_body = body_to_level(pose.roll_deg, pose.pitch_deg).rotation
     body = (level_points @ level_from_body).astype(np.float32)
     valid_per_column = np.count_nonzero(~np.isnan(depth_m), axis=0)  # inf: measured far
     scan = sector_scan(
