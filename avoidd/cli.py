@@ -196,6 +196,14 @@ def _cmd_calibrate_mount(args: argparse.Namespace) -> int:
     return EXIT_OK
 
 
+def _cmd_eval_perception(args: argparse.Namespace) -> int:
+    from avoidd.evaluation.scenes import contact_suite, run_suite, suite
+
+    summary = run_suite(suite(args.scenes, args.seed) + contact_suite(args.contact_scenes))
+    print(summary.format())
+    return EXIT_OK
+
+
 def _cmd_mock_autopilot(args: argparse.Namespace) -> int:
     from avoidd.mavlink.mock_autopilot import MockAutopilot, serve
     from avoidd.mavlink.signing import load_key
@@ -426,6 +434,15 @@ def build_parser() -> argparse.ArgumentParser:
         "--pixel", type=int, nargs=2, metavar=("U", "V"), help="pixel (default: nearest obstacle)"
     )
     mea.set_defaults(handler=_cmd_measure)
+
+    ep = commands.add_parser(
+        "eval-perception",
+        help="score obstacle perception on rendered scenes with exact truth",
+    )
+    ep.add_argument("--scenes", type=int, default=24, help="obstacle scenes (default 24)")
+    ep.add_argument("--seed", type=int, default=2024, help="scene generator seed")
+    ep.add_argument("--contact-scenes", type=int, default=12, help="roll-free contact scenes")
+    ep.set_defaults(handler=_cmd_eval_perception)
 
     cm = commands.add_parser(
         "calibrate-mount",

@@ -311,7 +311,7 @@ class SectorsConfig(_Strict):
         min_pixels: Points a bin's nearest cluster needs before it counts as an obstacle, so that
             a few speckles cannot create one.
         cluster_window_px: Width of that cluster in disparity pixels (about the matcher's noise
-            band; see ``avoidd.perception.sectors.nearest_cluster_m``).
+            band; see ``avoidd.perception.sectors.nearest_cluster``).
         min_valid_fraction: Below this share of measured pixels a bin without an obstacle is
             unknown rather than clear.
         min_size_m: A cluster must also cover a square of this side at its own distance (so

@@ -250,3 +250,24 @@ def test_connection_strings(text: str, spec: LinkSpec) -> None:
 def test_bad_connection_strings(text: str, fragment: str) -> None:
     with pytest.raises(ValueError, match=fragment):
         parse_connection(text)
+
+
+@pytest.mark.parametrize("name", ["demo.yaml", "rig360.yaml"])
+def test_shipped_configs_load(name: str) -> None:
+    config, calibrations = load_all(REPO / "config" / name)
+    assert set(calibrations) == {head.name for head in config.heads}
+    if name == "rig360.yaml":
+        assert [h.mount.yaw_deg for h in config.heads] == [0, 90, 180, 270]
+        assert config.mavlink.distance_sensor.enabled
+
+
+def test_row_band_is_refused_with_a_pointer(tmp_path: Path) -> None:
+    text = (REPO / "config" / "demo.yaml").read_text()
+    text = text.replace("min_pixels: 20", "row_band: [0.3, 0.5]\n      min_pixels: 20")
+    (tmp_path / "calibration").mkdir()
+    calibration = REPO / "config" / "calibration" / "synthetic-640x480.yaml"
+    (tmp_path / "calibration" / calibration.name).write_text(calibration.read_text())
+    (tmp_path / "old.yaml").write_text(text)
+    with pytest.raises(ConfigError) as caught:
+        load_all(tmp_path / "old.yaml")
+    assert "row_band is gone" in "\n".join(caught.value.lines)

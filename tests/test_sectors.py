@@ -15,7 +15,7 @@ from avoidd.perception.sectors import (
     column_bearings_deg,
     covered_bins,
     merge_scans,
-    nearest_cluster_m,
+    nearest_cluster,
 )
 from avoidd.types import FramePose, Mount, RectifiedRig, SectorScan, bin_bearing_deg, wrap_deg
 
@@ -141,7 +141,7 @@ def test_nearest_cluster_reports_the_near_end_of_an_oblique_surface() -> None:
     # One bin seeing a wall whose range grows from 4 m to 8 m across the bin.
     ranges = np.linspace(4.0, 8.0, 400)
     focal_baseline = 48.0
-    distance = nearest_cluster_m(
+    distance, _ = nearest_cluster(
         np.zeros(400, dtype=np.int64), (focal_baseline / ranges).astype(np.float32), 48.0, 20, 0.8
     )
     assert 4.0 <= distance[0] < 4.0 * 1.03
@@ -163,7 +163,7 @@ def test_nearest_cluster_properties(
 ) -> None:
     bins = np.array([b for b, _ in points], dtype=np.int64)
     disparity = np.array([d for _, d in points], dtype=np.float32)
-    distance = nearest_cluster_m(bins, disparity, 48.0, min_pixels, window_px)
+    distance, _ = nearest_cluster(bins, disparity, 48.0, min_pixels, window_px)
     counts = np.bincount(bins, minlength=72) if points else np.zeros(72, dtype=np.int64)
     for index in range(72):
         values = disparity[bins == index]
@@ -218,3 +218,20 @@ def test_column_bearings_follow_the_mount() -> None:
     bearings = column_bearings_deg(RIG, Mount(yaw_deg=-90.0))
     assert bearings[0] == pytest.approx(-90.0 - RIG.hfov_deg / 2, abs=0.1)
     assert bearings[-1] == pytest.approx(-90.0 + RIG.hfov_deg / 2, abs=0.1)
+
+
+def test_near_clusters_must_be_as_large_as_a_small_object_there() -> None:
+    # At 1.33 m (d = 36 px with f B = 48, B = 0.12) a 5 cm square covers (0.05 / 0.12 * 36)^2
+    # = 225 pixels: 40 pixels smeared off an edge do not make an obstacle, 300 do.
+    disparity = np.full(40, 36.0, dtype=np.float32)
+    smear, _ = nearest_cluster(np.zeros(40, dtype=np.int64), disparity, 48.0, 20, 0.8, 0.05 / 0.12)
+    assert np.isnan(smear[0])
+    wall = np.concatenate([disparity, np.full(300, 35.9, dtype=np.float32)])
+    found, index = nearest_cluster(np.zeros(340, dtype=np.int64), wall, 48.0, 20, 0.8, 0.05 / 0.12)
+    assert found[0] == pytest.approx(48.0 / 35.9, rel=1e-3) or found[0] == pytest.approx(48 / 36)
+    assert index[0] >= 0
+    # Far away the fixed minimum rules: 20 points at d = 4 (12 m) still make an obstacle.
+    far, _ = nearest_cluster(
+        np.zeros(20, dtype=np.int64), np.full(20, 4.0, np.float32), 48.0, 20, 0.8, 0.05 / 0.12
+    )
+    assert far[0] == pytest.approx(12.0)

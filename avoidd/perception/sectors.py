@@ -85,7 +85,7 @@ def sector_scan(
     """Reduce one head's obstacle points to the 72-bin distance grid.
 
     Every point counts. A bin reports its nearest cluster of at least ``min_pixels`` points
-    (see :func:`nearest_cluster_m`), measured horizontally from the body origin in the level
+    (see :func:`nearest_cluster`), measured horizontally from the body origin in the level
     frame; without one it is clear when enough of the pixels of its image columns were
     measured, else unknown. Bins outside the field of view are unknown.
 
@@ -151,24 +151,6 @@ def _column_geometry(rig: RectifiedRig, mount: Mount) -> _Columns:
     for array in columns:
         array.flags.writeable = False
     return columns
-
-
-def nearest_cluster_m(
-    bins: IntArray,
-    disparity_px: FloatArray,
-    focal_baseline: float | np.float32,
-    min_pixels: int,
-    window_px: float,
-    min_size_px_per_px: float = 0.0,
-) -> FloatArray:
-    """Distance of the nearest dense cluster of points in every bin (see :func:`nearest_cluster`).
-
-    Returns:
-        (72,) distances in metres, NaN where a bin has no cluster.
-    """
-    return nearest_cluster(
-        bins, disparity_px, focal_baseline, min_pixels, window_px, min_size_px_per_px
-    )[0]
 
 
 def nearest_cluster(
