@@ -332,3 +332,30 @@ def test_filter_with_k_1_passes_readings_straight_through() -> None:
     out = f.update(_scan(0, {3: 1.5}))
     assert out.distance_m[3] == pytest.approx(1.5)
     assert f.update(_scan(10, {})).distance_m[3] == np.inf
+
+
+def test_reported_points_are_in_body_frd_under_attitude() -> None:
+    from avoidd.perception.perceive import perceive
+
+    wall = np.full((RIG.height, RIG.width), 4.0, dtype=np.float32)
+    seen = perceive(
+        wall,
+        RIG,
+        Mount(),
+        FramePose(8.0, -12.0, 1.5),
+        CONFIG,
+        SectorsConfig(),
+        HistogramConfig(),
+        20.0,
+        0,
+    )
+    scan = seen.scan
+    assert scan.points_frd_m is not None
+    finite = np.flatnonzero(np.isfinite(scan.distance_m))
+    assert finite.size >= 5
+    level = body_to_level(8.0, -12.0)
+    for index in finite:
+        point = level.apply(scan.points_frd_m[index])
+        assert math.hypot(point[0], point[1]) == pytest.approx(scan.distance_m[index], rel=1e-4)
+        # In the body frame the point is off the horizontal plane by the attitude.
+        assert abs(scan.points_frd_m[index][2] - point[2]) > 0.05

@@ -86,13 +86,10 @@ def perceive(
     forward = level.forward_m[keep]
     right = level.right_m[keep]
     down = level.down_m[keep]
-    level_points = np.stack([forward, right, down], axis=1).astype(np.float64)
-    # Body FRD = level turned back by the attitude (the inverse rotation is the transpose).
     level_from_body = body_to_level(pose.roll_deg, pose.pitch_deg).rotation
-    body = (level_points @ level_from_body).astype(np.float32)
     valid_per_column = np.count_nonzero(~np.isnan(depth_m), axis=0)  # inf: measured far
     scan = sector_scan(
-        Candidates(forward, right, body),
+        Candidates(forward, right, down, level_from_body),
         valid_per_column,
         depth_m.shape[0],
         rig,

@@ -65,12 +65,15 @@ class Candidates(NamedTuple):
     Attributes:
         forward_m: Level-frame forward coordinate from the body origin, (N,).
         right_m: Level-frame right coordinate, (N,).
-        points_frd_m: The same points in body FRD, (N, 3).
+        down_m: Level-frame down coordinate, (N,).
+        level_from_body: Rotation from body FRD to the level frame (the attitude), to give
+            the reported points in body FRD.
     """
 
     forward_m: FloatArray
     right_m: FloatArray
-    points_frd_m: FloatArray
+    down_m: FloatArray
+    level_from_body: npt.NDArray[np.float64]
 
 
 def sector_scan(
@@ -118,7 +121,12 @@ def sector_scan(
     has_obstacle = np.isfinite(nearest)
     distance = nearest.astype(np.float32)
     points = np.full((SECTOR_COUNT, 3), np.nan, dtype=np.float32)
-    points[has_obstacle] = candidates.points_frd_m[picked[has_obstacle]]
+    index = picked[has_obstacle]
+    level = np.stack(
+        [candidates.forward_m[index], candidates.right_m[index], candidates.down_m[index]], axis=1
+    )
+    # Body = transpose(level_from_body) @ level; with row vectors that is level @ R.
+    points[has_obstacle] = (level @ candidates.level_from_body).astype(np.float32)
 
     with np.errstate(invalid="ignore", divide="ignore"):
         valid_fraction = np.where(total > 0, valid_count / np.maximum(total, 1), 0.0)
