@@ -9,7 +9,14 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from avoidd.config import HistogramConfig, PerceptionConfig, SectorsConfig, TemporalConfig
+from avoidd.config import (
+    BandConfig,
+    GroundConfig,
+    HistogramConfig,
+    PerceptionConfig,
+    SectorsConfig,
+    TemporalConfig,
+)
 from avoidd.mavlink.attitude import Attitude
 from avoidd.mavlink.vehicle import LocalPosition, Rangefinder
 from avoidd.perception.frames import (
@@ -25,7 +32,7 @@ from avoidd.perception.geometry import (
     tilt_from_ground_point,
     tilt_from_horizon,
 )
-from avoidd.perception.ground import fit_plane, height_from_rangefinder, obstacle_mask
+from avoidd.perception.ground import fit_plane, height_from_rangefinder, obstacle_points
 from avoidd.perception.obstacles import cluster_obstacles
 from avoidd.perception.pose import resolve_pose
 from avoidd.perception.temporal import SectorFilter
@@ -167,6 +174,18 @@ def test_geometry_agrees_with_rendered_truth_on_ground_pixels() -> None:
 # --- ground model -----------------------------------------------------------------------------
 
 
+def _kept(
+    depth: np.ndarray, height_m: float, ground: GroundConfig, band: BandConfig, max_range_m: float
+) -> np.ndarray:
+    """The obstacle mask of a level camera at the body origin."""
+    points = obstacle_points(
+        depth, RIG, camera_to_level(Mount(), 0.0, 0.0), height_m, ground, band, max_range_m
+    )
+    mask = np.zeros(depth.size, dtype=bool)
+    mask[points.pixels] = True
+    return mask.reshape(depth.shape)
+
+
 def test_ground_is_rejected_and_obstacles_kept_even_with_a_pixel_of_disparity_error() -> None:
     scene = Scene(1.5, 0.0, (), None, 1)
     depth = render_pair(scene, RIG).truth.depth_m.copy()
@@ -174,32 +193,73 @@ def test_ground_is_rejected_and_obstacles_kept_even_with_a_pixel_of_disparity_er
     fb = RIG.fx * RIG.baseline_m
     # Every ground pixel measured one pixel of disparity too near: at 16 m that is 4 m.
     depth_near = np.where(ground, fb / (fb / depth + 1.0), np.nan).astype(np.float32)
-    level = depth_to_frame(depth_near, RIG, camera_to_level(Mount(), 0.0, 0.0))
-    keep = obstacle_mask(level, depth_near, fb, 0.0, 1.5, CONFIG.ground, CONFIG.band, 20.0)
-    assert not keep.any()
+    assert not _kept(depth_near, 1.5, CONFIG.ground, CONFIG.band, 20.0).any()
     # The same pixel error without the tolerance makes far ground stand up.
     strict = CONFIG.ground.model_copy(update={"disparity_tolerance_px": 0.0})
-    assert obstacle_mask(level, depth_near, fb, 0.0, 1.5, strict, CONFIG.band, 20.0).any()
+    assert _kept(depth_near, 1.5, strict, CONFIG.band, 20.0).any()
     # A wall 5 m ahead stands: its rows between the margin and the band are kept.
     wall = np.full((RIG.height, RIG.width), 5.0, dtype=np.float32)
-    level = depth_to_frame(wall, RIG, camera_to_level(Mount(), 0.0, 0.0))
-    keep = obstacle_mask(level, wall, fb, 0.0, 1.5, CONFIG.ground, CONFIG.band, 20.0)
+    keep = _kept(wall, 1.5, CONFIG.ground, CONFIG.band, 20.0)
     rows = np.flatnonzero(keep.any(axis=1))
     heights = 1.5 - 5.0 * (rows - RIG.cy) / RIG.fy
     assert heights.min() >= 0.3 and heights.max() <= 1.5 + 2.0
     assert heights.min() < 0.9  # the tolerance costs little at 5 m
+    # Unmeasured and measured-far pixels are never obstacles.
+    wall[:, :10] = np.nan
+    wall[:, 10:20] = np.inf
+    assert not _kept(wall, 1.5, CONFIG.ground, CONFIG.band, 20.0)[:, :20].any()
+
+
+@settings(max_examples=40, deadline=None)
+@given(
+    st.floats(-60, 60),
+    st.floats(-40, 20),
+    st.floats(-20, 20),
+    st.floats(-20, 20),
+    st.floats(0.3, 4.0),
+    st.floats(0.0, 2.0),
+)
+def test_obstacle_points_equal_the_per_point_rule(
+    yaw: float, pitch: float, roll: float, v_pitch: float, height: float, tolerance: float
+) -> None:
+    """The product form of the ground and band tests agrees with moving each point back."""
+    rng = np.random.default_rng(1)
+    depth = rng.uniform(0.3, 40.0, (RIG.height, RIG.width)).astype(np.float32)
+    depth[rng.random(depth.shape) < 0.1] = np.nan
+    pose = camera_to_level(Mount(yaw, pitch, roll, (0.2, 0.1, -0.1)), 5.0, v_pitch)
+    ground = CONFIG.ground.model_copy(update={"disparity_tolerance_px": tolerance})
+    points = obstacle_points(depth, RIG, pose, height, ground, CONFIG.band, 15.0)
+    level = depth_to_frame(depth, RIG, pose)
+    fb = RIG.fx * RIG.baseline_m
+    camera = pose.translation[2]
+    with np.errstate(invalid="ignore", divide="ignore"):
+        scale = 1.0 - tolerance / fb * depth.astype(np.float64)
+        far_down = (level.down_m - camera) / scale + camera
+        expected = (
+            (level.down_m >= -CONFIG.band.above_m)
+            & (level.down_m <= CONFIG.band.below_m)
+            & (np.hypot(level.forward_m, level.right_m) < 15.0)
+            & (scale > 0)
+            & (far_down <= height - ground.margin_m)
+        )
+    got = np.zeros(depth.size, dtype=bool)
+    got[points.pixels] = True
+    disagree = got != expected.ravel()
+    # Only points on the very edge of a test (float32 against float64) may differ.
+    assert np.count_nonzero(disagree) <= max(2, expected.size // 5000)
+    assert np.allclose(points.level.down_m, level.down_m.ravel()[points.pixels], atol=1e-4)
+    assert np.allclose(points.level.right_m, level.right_m.ravel()[points.pixels], atol=1e-4)
 
 
 def test_height_band_limits() -> None:
-    fb = RIG.fx * RIG.baseline_m
     wall = np.full((RIG.height, RIG.width), 4.0, dtype=np.float32)
     level = depth_to_frame(wall, RIG, camera_to_level(Mount(), 0.0, 0.0))
     band = CONFIG.band.model_copy(update={"above_m": 0.2, "below_m": 0.4})
-    keep = obstacle_mask(level, wall, fb, 0.0, 10.0, CONFIG.ground, band, 20.0)
+    keep = _kept(wall, 10.0, CONFIG.ground, band, 20.0)
     down = level.down_m[keep]
     assert down.min() >= -0.2 and down.max() <= 0.4
     # Beyond the maximum range nothing is kept.
-    assert not obstacle_mask(level, wall, fb, 0.0, 10.0, CONFIG.ground, band, 3.9).any()
+    assert not _kept(wall, 10.0, CONFIG.ground, band, 3.9).any()
 
 
 def test_height_from_a_tilted_rangefinder() -> None:

@@ -108,6 +108,13 @@ class Components(NamedTuple):
     down_m: FloatArray
 
 
+def _normalised(rig: RectifiedRig, height: int, width: int) -> tuple[FloatArray, FloatArray]:
+    """``xn = (u - cx) / fx`` of every column and ``yn = (v - cy) / fy`` of every row."""
+    xn = (np.arange(width, dtype=np.float32) - np.float32(rig.cx)) / np.float32(rig.fx)
+    yn = (np.arange(height, dtype=np.float32) - np.float32(rig.cy)) / np.float32(rig.fy)
+    return xn, yn
+
+
 def depth_to_frame(depth_m: FloatArray, rig: RectifiedRig, pose: Pose) -> Components:
     """Every pixel's 3D point in the frame of ``pose`` (camera optical frame to that frame).
 
@@ -124,16 +131,56 @@ def depth_to_frame(depth_m: FloatArray, rig: RectifiedRig, pose: Pose) -> Compon
     Returns:
         Forward, right and down coordinates, (H, W) float32 each.
     """
-    height, width = depth_m.shape
-    xn = (np.arange(width, dtype=np.float32) - np.float32(rig.cx)) / np.float32(rig.fx)
-    yn = (np.arange(height, dtype=np.float32) - np.float32(rig.cy)) / np.float32(rig.fy)
     z = np.where(np.isfinite(depth_m), depth_m, np.float32(np.nan))
     out = []
-    for row, offset in zip(pose.rotation, pose.translation, strict=True):
-        a, b, c = (np.float32(value) for value in row)
-        coefficient = (a * xn)[None, :] + (b * yn + c)[:, None]
-        coordinate = z * coefficient
+    for axis, offset in enumerate(pose.translation):
+        coordinate = z * axis_per_depth(rig, depth_m.shape, pose, axis)
         if offset:
             coordinate += np.float32(offset)
         out.append(coordinate.astype(np.float32, copy=False))
+    return Components(out[0], out[1], out[2])
+
+
+def axis_per_depth(rig: RectifiedRig, shape: tuple[int, ...], pose: Pose, axis: int) -> FloatArray:
+    """How much one output coordinate grows per metre of optical depth, at every pixel.
+
+    Coordinate ``axis`` of a pixel's point is ``Z * map[v, u] + pose.translation[axis]``.
+
+    Args:
+        rig: The rig of the depth map.
+        shape: (H, W) of the depth map.
+        pose: Camera-to-frame pose.
+        axis: 0 forward, 1 right, 2 down.
+
+    Returns:
+        (H, W) float32.
+    """
+    xn, yn = _normalised(rig, shape[0], shape[1])
+    a, b, c = (np.float32(value) for value in pose.rotation[axis])
+    return np.asarray((a * xn)[None, :] + (b * yn + c)[:, None], dtype=np.float32)
+
+
+def points_at(
+    depth_m: FloatArray, rig: RectifiedRig, pose: Pose, index: npt.NDArray[np.integer]
+) -> Components:
+    """The 3D points of some pixels only, in the frame of ``pose``.
+
+    Args:
+        depth_m: (H, W) depth along the optical axis.
+        rig: The rig of the depth map.
+        pose: Camera-to-frame pose.
+        index: Flat (row-major) indices of the pixels.
+
+    Returns:
+        Forward, right and down coordinates, (N,) float32 each, in the order of ``index``.
+    """
+    height, width = depth_m.shape
+    xn, yn = _normalised(rig, height, width)
+    rows, columns = np.divmod(index, width)
+    x, y = xn[columns], yn[rows]
+    z = depth_m.reshape(-1)[index]
+    out = []
+    for row, offset in zip(pose.rotation, pose.translation, strict=True):
+        a, b, c = (np.float32(value) for value in row)
+        out.append(np.asarray(z * (a * x + b * y + c) + np.float32(offset), dtype=np.float32))
     return Components(out[0], out[1], out[2])

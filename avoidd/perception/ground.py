@@ -9,23 +9,34 @@ import numpy as np
 import numpy.typing as npt
 
 from avoidd.config import BandConfig, GroundConfig
-from avoidd.perception.frames import Components
-from avoidd.types import BoolArray, FloatArray
+from avoidd.perception.frames import Components, Pose, axis_per_depth, points_at
+from avoidd.types import BoolArray, FloatArray, RectifiedRig
 
 Vector = npt.NDArray[np.float64]
 
 
-def obstacle_mask(
-    level: Components,
+class ObstaclePoints(NamedTuple):
+    """The pixels of a depth map that may belong to an obstacle, and their level-frame points.
+
+    Attributes:
+        pixels: Flat (row-major) pixel indices, increasing.
+        level: Their level-frame coordinates, (N,) each.
+    """
+
+    pixels: npt.NDArray[np.intp]
+    level: Components
+
+
+def obstacle_points(
     depth_m: FloatArray,
-    focal_baseline: float,
-    camera_down_m: float,
+    rig: RectifiedRig,
+    to_level: Pose,
     height_m: float,
     ground: GroundConfig,
     band: BandConfig,
     max_range_m: float,
-) -> BoolArray:
-    """Pixels whose point may belong to an obstacle.
+) -> ObstaclePoints:
+    """Pixels whose point may belong to an obstacle, with their level-frame points.
 
     A point is kept when it lies within the height band around the body origin, nearer than
     ``max_range_m`` horizontally, and stands at least ``ground.margin_m`` above the ground plane
@@ -33,36 +44,51 @@ def obstacle_mask(
     ``ground.disparity_tolerance_px`` smaller. That tolerance matters far away: one pixel of
     disparity is a third of the depth at 16 m for a 48 px m rig, so far ground measured a
     pixel too near rises half a metre above the plane; moved back by the tolerance along its
-    ray it sinks into the ground, while a real obstacle stays above it.
+    ray it sinks into the ground, while a real obstacle stays above it. A point measured at a
+    disparity at or below the tolerance cannot be placed at all and is never kept.
+
+    Only the down coordinate decides the band and the ground, and it is ``Z * c[v, u] + t``
+    (see :func:`~avoidd.perception.frames.axis_per_depth`), so both tests are products of
+    the depth with one per-pixel map; full coordinates and the range test are computed for
+    the survivors only.
 
     Args:
-        level: Level-frame coordinates of every pixel.
-        depth_m: The depth map they come from (optical depth).
-        focal_baseline: ``f * B`` of the head in pixel metres.
-        camera_down_m: Level-frame down coordinate of the camera centre.
+        depth_m: Optical depth of every pixel (NaN unmeasured, ``inf`` measured far).
+        rig: The rig of the depth map.
+        to_level: Camera-to-level pose of the frame.
         height_m: Height of the body origin above the ground.
         ground: Ground model parameters.
         band: Height band parameters.
         max_range_m: Points at or beyond this horizontal range are left out (they are clear).
 
     Returns:
-        (H, W) mask.
+        The kept pixels and their points.
     """
-    down = level.down_m
-    camera = np.float32(camera_down_m)
-    with np.errstate(invalid="ignore", divide="ignore"):
-        keep = (down >= np.float32(-band.above_m)) & (down <= np.float32(band.below_m))
-        range_sq = level.forward_m * level.forward_m + level.right_m * level.right_m
-        keep &= range_sq < np.float32(max_range_m * max_range_m)
-        # Moving a point back along its ray to disparity d - tol scales its offset from the
-        # camera by d / (d - tol) = 1 / (1 - tol * Z / fB); past d = tol it goes to infinity.
-        scale = (
-            np.float32(1.0) - np.float32(ground.disparity_tolerance_px / focal_baseline) * depth_m
-        )
-        rise = down - camera
-        far_down = np.where(scale > 0, rise / scale, rise * np.float32(np.inf)) + camera
-        keep &= far_down <= np.float32(height_m - ground.margin_m)
-    return keep
+    camera_down = float(to_level.translation[2])
+    # Down coordinate relative to the camera: how far the point lies below the camera.
+    rise = depth_m * axis_per_depth(rig, depth_m.shape, to_level, 2)
+    # Moved back along its ray to disparity d - tol, a point's offset from the camera scales
+    # by 1 / s with s = 1 - tol * Z / fB; its ground test rise / s <= K (K: clearance of the
+    # camera over the ground less the margin) is, for s > 0, rise + K * tol / fB * Z <= K.
+    clearance = height_m - ground.margin_m - camera_down
+    per_depth = ground.disparity_tolerance_px / (rig.fx * rig.baseline_m)
+    with np.errstate(invalid="ignore"):
+        keep = rise >= np.float32(-band.above_m - camera_down)
+        keep &= rise <= np.float32(band.below_m - camera_down)
+        if per_depth > 0:
+            farthest = min(1.0 / per_depth, float(np.finfo(np.float32).max))
+            keep &= depth_m < np.float32(farthest)
+            keep &= rise + np.float32(clearance * per_depth) * depth_m <= np.float32(clearance)
+        else:
+            keep &= rise <= np.float32(clearance)
+    pixels = np.flatnonzero(keep)
+    level = points_at(depth_m, rig, to_level, pixels)
+    near = level.forward_m * level.forward_m + level.right_m * level.right_m < np.float32(
+        max_range_m * max_range_m
+    )
+    return ObstaclePoints(
+        pixels[near], Components(level.forward_m[near], level.right_m[near], level.down_m[near])
+    )
 
 
 def height_from_rangefinder(distance_m: float, roll_deg: float, pitch_deg: float) -> float:

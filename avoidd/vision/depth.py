@@ -19,12 +19,14 @@ def depth_from_disparity(disparity_px: FloatArray, rig: RectifiedRig) -> FloatAr
         Depth in metres, float32. NaN where the disparity is invalid; ``inf`` where
         ``d + doffs <= 0`` (a point at or beyond infinity: measured, and far).
     """
-    shifted = disparity_px.astype(np.float32) + np.float32(rig.doffs_px)
+    shifted = disparity_px.astype(np.float32, copy=False)
+    if rig.doffs_px:
+        shifted = shifted + np.float32(rig.doffs_px)
     numerator = np.float32(rig.fx * rig.baseline_m)
     with np.errstate(divide="ignore", invalid="ignore"):
-        depth = np.where(shifted > 0, numerator / shifted, np.float32(np.inf))
-    depth[np.isnan(shifted)] = np.nan
-    return depth.astype(np.float32, copy=False)
+        depth = np.divide(numerator, shifted, dtype=np.float32)  # NaN stays NaN
+        depth[shifted <= 0] = np.inf
+    return depth
 
 
 def disparity_from_depth(depth_m: FloatArray, rig: RectifiedRig) -> FloatArray:

@@ -87,7 +87,7 @@ def median_smooth(disparity_px: FloatArray, size: int) -> FloatArray:
     if size not in (3, 5):
         raise ValueError(f"median size must be 0, 3 or 5, got {size}")
     invalid = np.isnan(disparity_px)
-    filled = np.where(invalid, np.float32(0.0), disparity_px).astype(np.float32)
+    filled = cv2.patchNaNs(disparity_px.astype(np.float32, copy=True), 0.0)
     smoothed = np.asarray(cv2.medianBlur(filled, size), dtype=np.float32)
     smoothed[invalid] = np.nan
     return smoothed
@@ -201,13 +201,12 @@ def texture_gate(grey: Image, window_px: int, min_snr: float) -> npt.NDArray[np.
     Returns:
         (H, W) mask, True where the image carries texture along its rows.
     """
-    image = grey.astype(np.float32)
     along = (window_px, 1)
-    across = (1, window_px)
     border = cv2.BORDER_REFLECT
-    mean = cv2.boxFilter(image, -1, along, borderType=border)
-    mean_sq = cv2.boxFilter(image * image, -1, along, borderType=border)
-    variance = cv2.boxFilter(mean_sq - mean * mean, -1, across, borderType=border)
+    mean = cv2.boxFilter(grey, cv2.CV_32F, along, borderType=border)
+    mean_sq = cv2.sqrBoxFilter(grey, cv2.CV_32F, along, borderType=border)
+    spread = cv2.subtract(mean_sq, cv2.multiply(mean, mean))
+    variance = cv2.boxFilter(spread, -1, (1, window_px), borderType=border)
     sigma = noise_sigma(grey)
     noise_variance = sigma * sigma * (1.0 - 1.0 / window_px)
     return np.asarray(variance >= np.float32(min_snr * min_snr * noise_variance), dtype=np.bool_)
