@@ -82,8 +82,9 @@ def load_all(path: Path) -> tuple[AppConfig, dict[str, Calibration]]:
             if sensor_orientation(Mount(m.yaw_deg, m.pitch_deg, m.roll_deg)) is None:
                 problems.append(
                     f"{path}: heads.{head.name}.mount: yaw {m.yaw_deg} deg, pitch {m.pitch_deg} "
-                    "deg has no DISTANCE_SENSOR orientation (yaw a multiple of 45 at pitch 0, "
-                    "or pitch +-90); fix the mount or set mavlink.distance_sensor.enabled: false"
+                    "deg has no DISTANCE_SENSOR orientation (yaw within 2.5 deg of a multiple "
+                    "of 45, pitch within +-30); fix the mount or set "
+                    "mavlink.distance_sensor.enabled: false"
                 )
         calibrations[head.name] = calibration
     signing = config.mavlink.signing

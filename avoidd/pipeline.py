@@ -12,6 +12,7 @@ from avoidd.config import HeadConfig, PerceptionConfig
 from avoidd.errors import BrokenFrame
 from avoidd.perception.obstacles import Obstacle
 from avoidd.perception.perceive import perceive
+from avoidd.perception.pose import resolve_pose
 from avoidd.types import (
     FloatArray,
     FramePose,
@@ -130,12 +131,7 @@ class HeadPipeline:
 
     def default_pose(self, frame: StereoFrame) -> FramePose:
         """The pose recorded with the frame, else the configured attitude and height."""
-        if frame.pose is not None:
-            return frame.pose
-        assumed = self.perception.attitude
-        return FramePose(
-            assumed.roll_deg, assumed.pitch_deg, self.perception.ground.height_m, "config", "config"
-        )
+        return resolve_pose(frame.t_capture_ns, frame.pose, None, None, None, self.perception)
 
     def _preprocess(
         self, left: Image, right: Image

@@ -41,10 +41,13 @@ RIG = RectifiedRig(320, 240, 200.0, 200.0, 159.5, 119.5, 0.12)
         (-90.0, 0.0, 6),  # to the left is YAW_270
         (315.0, 0.0, 7),
         (-45.0, 1.5, 7),
-        (0.0, -90.0, 25),  # PITCH_270: down
-        (0.0, 90.0, 24),  # PITCH_90: up
+        (0.0, -20.0, 0),  # a forward camera looking down still measures horizontal range
+        (90.0, 30.0, 2),
+        # Its reading is a horizontal range, never a height: no PITCH_270 (down) or PITCH_90.
+        (0.0, -90.0, None),
+        (0.0, 90.0, None),
+        (0.0, -31.0, None),
         (30.0, 0.0, None),
-        (0.0, -20.0, None),
     ],
 )
 def test_sensor_orientation(yaw: float, pitch: float, expected: int | None) -> None:

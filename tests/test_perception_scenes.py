@@ -9,9 +9,18 @@ agrees with stereo within 3% at ground contacts where its model holds.
 
 from __future__ import annotations
 
+from pathlib import Path
+
+import cv2
+import numpy as np
 import pytest
 
-from avoidd.evaluation.scenes import SuiteSummary, contact_suite, run_suite, suite
+from avoidd.config import HeadConfig
+from avoidd.evaluation.scenes import SceneCase, SuiteSummary, contact_suite, run_suite, suite
+from avoidd.pipeline import HeadPipeline
+from avoidd.sources.files import FolderSource
+from avoidd.sources.scene import render_pair, to_uint8
+from avoidd.vision.calibration import Calibration
 
 
 @pytest.fixture(scope="module")
@@ -37,3 +46,45 @@ def test_ground_plane_geometry_agrees_with_stereo_at_contacts(summary: SuiteSumm
     contacts = summary.contact_errors_pct
     assert len(contacts) >= 10
     assert max(abs(c) for c in contacts) <= 3.0, summary.format()
+
+
+def _write_recording(folder: Path, case: SceneCase, attitude: bool) -> None:
+    rendered = render_pair(case.scene, case.rig)
+    rng = np.random.default_rng(3)
+    (folder / "left").mkdir(parents=True)
+    (folder / "right").mkdir()
+    for view, image in (("left", rendered.left), ("right", rendered.right)):
+        noise = rng.normal(0.0, 1.5, image.shape).astype(np.float32)
+        cv2.imwrite(str(folder / view / "0000.png"), to_uint8(image, noise))
+    roll, pitch = case.scene.vehicle_roll_deg, case.scene.vehicle_pitch_deg
+    lines = (
+        ["t_capture_ns,roll_deg,pitch_deg,height_m", f"0,{roll},{pitch},1.5"]
+        if attitude
+        else ["t_capture_ns", "0"]
+    )
+    (folder / "frames.csv").write_text("\n".join(lines) + "\n")
+
+
+def test_a_recordings_attitude_is_used_for_the_ground(tmp_path: Path) -> None:
+    """Tilted ground from a recording: clear with its attitude, false obstacles without."""
+    case = next(c for c in suite() if c.name == "ground-r+20-p-20-fb48")
+    finite_bins = {}
+    for attitude in (True, False):
+        folder = tmp_path / f"attitude-{attitude}"
+        _write_recording(folder, case, attitude)
+        frame = FolderSource(folder, None, paced=False, loop=False).read()
+        head = HeadConfig.model_validate(
+            {
+                "name": "front",
+                "calibration": __file__,
+                "source": {"kind": "synthetic"},
+                "matcher": {"kind": "sgbm", "num_disparities": 128},
+            }
+        )
+        pipeline = HeadPipeline(head, Calibration(case.rig, None, folder), 20.0)
+        result = pipeline.process(frame)
+        assert result.pose is not None
+        assert result.pose.source == ("recording" if attitude else "config")
+        finite_bins[attitude] = int(np.count_nonzero(np.isfinite(result.scan.distance_m)))
+    assert finite_bins[True] == 0
+    assert finite_bins[False] > 0

@@ -259,3 +259,37 @@ def test_paced_moving_scene_says_when_it_cannot_keep_up(caplog: pytest.LogCaptur
     warnings = [r.getMessage() for r in caplog.records if "moving scene" in r.getMessage()]
     assert len(warnings) == 1
     assert "not 200.0; lower fps or the resolution, or use replay" in warnings[0]
+
+
+def test_frames_csv_carries_the_recorded_attitude_and_height(tmp_path: Path) -> None:
+    rows = [
+        "t_capture_ns,roll_deg,pitch_deg,height_m",
+        "1000,12.5,-3.0,2.25",
+        "2000,-4.0,7.5,1.75",
+    ]
+    source = FolderSource(make_folder(tmp_path, 2, rows), None, paced=False, loop=False)
+    first, second = source.read(), source.read()
+    assert first.pose == FramePose(12.5, -3.0, 2.25, "recording", "recording")
+    assert second.pose == FramePose(-4.0, 7.5, 1.75, "recording", "recording")
+    # Attitude without height: the height is left to the rangefinder or the config.
+    rows = ["t_capture_ns,roll_deg,pitch_deg", "1000,1.0,2.0"]
+    pose = FolderSource(make_folder(tmp_path / "b", 1, rows), None, False, False).read().pose
+    assert pose is not None and (pose.roll_deg, pose.pitch_deg) == (1.0, 2.0)
+    assert pose.height_source == "none"
+
+
+@pytest.mark.parametrize(
+    ("rows", "message"),
+    [
+        (["t_capture_ns,roll_deg", "1,2.0"], "give both or neither"),
+        (["t_capture_ns,height_m", "1,2.0"], "needs roll_deg and pitch_deg"),
+        (["t_capture_ns,roll_deg,pitch_deg", "1,abc,2"], r"frames.csv:2: roll_deg is not a number"),
+        (["t_capture_ns,roll_deg,pitch_deg", "1,1,nan"], "pitch_deg is not finite"),
+        (["t_capture_ns,roll_deg,pitch_deg", "1,1,120"], r"within \+-90 degrees"),
+    ],
+)
+def test_frames_csv_attitude_errors_name_the_row_and_the_fix(
+    tmp_path: Path, rows: list[str], message: str
+) -> None:
+    with pytest.raises(SourceError, match=message):
+        FolderSource(make_folder(tmp_path, 1, rows), None, paced=False, loop=False)

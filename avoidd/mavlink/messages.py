@@ -14,32 +14,31 @@ from avoidd.types import FloatArray, Mount, RectifiedRig, SectorScan
 
 UNKNOWN_CM = 65535
 
-MAV_SENSOR_ROTATION_PITCH_90 = 24
-"""Pointing up."""
-MAV_SENSOR_ROTATION_PITCH_270 = 25
-"""Pointing down."""
 _ORIENTATION_TOLERANCE_DEG = 2.5
+MAX_SENSOR_PITCH_DEG = 30.0
+"""Steepest mount pitch a head may have and still be a horizontal DISTANCE_SENSOR."""
 
 
 def sensor_orientation(mount: Mount) -> int | None:
-    """The MAV_SENSOR_ORIENTATION of a head, or None when no enum value names its direction.
+    """The MAV_SENSOR_ORIENTATION of a head, or None when no enum value fits it.
 
-    ``MAV_SENSOR_ROTATION_YAW_45 * k`` (k = 0..7) means turned 45*k degrees clockwise (to the
-    right) seen from above, for ArduPilot and PX4 alike; pitch 90 is up and pitch 270 down.
-    A mount is accepted within 2.5 degrees of one of these directions (roll about the
-    viewing axis does not change where a range sensor points).
+    A head's DISTANCE_SENSOR reading is a horizontal range (the nearest bin of its sector scan),
+    so only the horizontal orientations fit: ``MAV_SENSOR_ROTATION_YAW_45 * k`` (k = 0..7),
+    turned 45*k degrees clockwise (to the right) seen from above, for ArduPilot and PX4 alike.
+    The yaw must be within 2.5 degrees of a multiple of 45. A head tilted up or down by up to
+    ``MAX_SENSOR_PITCH_DEG`` (a forward camera looking slightly down, say) still measures
+    horizontal ranges in that direction and keeps its yaw orientation. Steeper heads have
+    none: PITCH_270 would make the autopilot take the reading as its height above ground,
+    which a horizontal range is not. Roll about the viewing axis does not change where a
+    range sensor points.
 
     Args:
         mount: The head's mount.
 
     Returns:
-        The enum value (0..7, 24 or 25), or None.
+        The enum value (0..7), or None.
     """
-    if abs(mount.pitch_deg - 90.0) <= _ORIENTATION_TOLERANCE_DEG:
-        return MAV_SENSOR_ROTATION_PITCH_90
-    if abs(mount.pitch_deg + 90.0) <= _ORIENTATION_TOLERANCE_DEG:
-        return MAV_SENSOR_ROTATION_PITCH_270
-    if abs(mount.pitch_deg) > _ORIENTATION_TOLERANCE_DEG:
+    if abs(mount.pitch_deg) > MAX_SENSOR_PITCH_DEG:
         return None
     steps = mount.yaw_deg / 45.0
     k = round(steps)

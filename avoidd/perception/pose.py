@@ -25,7 +25,7 @@ def resolve_pose(
     the frame; else the configured one. Height: a downward rangefinder reading taken within
     ``ground.rangefinder_max_age_ms`` of capture (corrected for the tilt); else the height
     above home when ``ground.use_altitude`` is on and the position is as fresh; else the
-    recorded height; else ``ground.height_m``.
+    recorded height (when the recording has one); else ``ground.height_m``.
 
     Args:
         t_capture_ns: Capture time of the frame (avoidd's monotonic clock).
@@ -58,7 +58,7 @@ def resolve_pose(
         and position.down_m < 0.0
     ):
         height_m, height_source = -position.down_m, "altitude"
-    elif recorded is not None:
+    elif recorded is not None and math.isfinite(recorded.height_m):
         height_m, height_source = recorded.height_m, recorded.height_source
     else:
         height_m, height_source = config.ground.height_m, "config"

@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import csv
 import logging
+import math
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -12,7 +13,7 @@ import numpy as np
 
 from avoidd.errors import BrokenFrame, SourceError, SourceExhausted
 from avoidd.sources.base import Pacer
-from avoidd.types import Image, StereoFrame
+from avoidd.types import FramePose, Image, StereoFrame
 
 logger = logging.getLogger(__name__)
 
@@ -20,19 +21,52 @@ IMAGE_SUFFIXES = frozenset({".png", ".jpg", ".jpeg", ".bmp", ".tif", ".tiff", ".
 DEFAULT_FPS = 10.0
 
 
+POSE_COLUMNS = ("roll_deg", "pitch_deg")
+"""Optional ``frames.csv`` columns with the vehicle attitude at capture (both or neither)."""
+HEIGHT_COLUMN = "height_m"
+"""Optional ``frames.csv`` column with the height above ground at capture."""
+
+
 @dataclass(frozen=True)
 class _Pair:
     left: Path
     right: Path
     t_capture_ns: int | None
+    pose: FramePose | None = None
 
 
 def _images(folder: Path) -> list[Path]:
     return sorted(p for p in folder.iterdir() if p.suffix.lower() in IMAGE_SUFFIXES)
 
 
+def _pose(row: dict[str, str], has_height: bool, where: str) -> FramePose:
+    """The recorded attitude (and height) of one ``frames.csv`` row."""
+    values = {}
+    for column in (*POSE_COLUMNS, HEIGHT_COLUMN) if has_height else POSE_COLUMNS:
+        try:
+            values[column] = float(row[column])
+        except (TypeError, ValueError) as exc:
+            raise SourceError(f"{where}: {column} is not a number") from exc
+        if not math.isfinite(values[column]):
+            raise SourceError(f"{where}: {column} is not finite")
+    if abs(values["roll_deg"]) > 90.0 or abs(values["pitch_deg"]) > 90.0:
+        raise SourceError(f"{where}: roll_deg and pitch_deg must lie within +-90 degrees")
+    height = values.get(HEIGHT_COLUMN, math.nan)
+    return FramePose(
+        values["roll_deg"],
+        values["pitch_deg"],
+        height,
+        "recording",
+        "recording" if has_height else "none",
+    )
+
+
 def _read_index(folder: Path, path: Path) -> list[_Pair]:
-    """Pairs listed in ``frames.csv`` (``t_capture_ns``, optionally ``left`` and ``right``)."""
+    """Pairs listed in ``frames.csv``.
+
+    Columns: ``t_capture_ns``; optionally ``left`` and ``right`` (file names), ``roll_deg``
+    and ``pitch_deg`` (vehicle attitude at capture) and ``height_m`` (height above ground).
+    """
     left_dir, right_dir = folder / "left", folder / "right"
     with path.open(newline="", encoding="utf-8") as handle:
         reader = csv.DictReader(handle)
@@ -41,6 +75,12 @@ def _read_index(folder: Path, path: Path) -> list[_Pair]:
             raise SourceError(f"{path}: needs a header with a 't_capture_ns' column")
         rows = list(reader)
     named = {"left", "right"} <= fields
+    has_pose = set(POSE_COLUMNS) <= fields
+    if not has_pose and fields & set(POSE_COLUMNS):
+        raise SourceError(f"{path}: has one of roll_deg and pitch_deg; give both or neither")
+    has_height = HEIGHT_COLUMN in fields
+    if has_height and not has_pose:
+        raise SourceError(f"{path}: height_m needs roll_deg and pitch_deg columns too")
     left_images = [] if named else _images(left_dir)
     right_images = [] if named else _images(right_dir)
     if not named and len(rows) != len(left_images):
@@ -55,10 +95,11 @@ def _read_index(folder: Path, path: Path) -> list[_Pair]:
         except (TypeError, ValueError) as exc:
             line = number + 2
             raise SourceError(f"{path}:{line}: t_capture_ns is not an integer") from exc
+        pose = _pose(row, has_height, f"{path}:{number + 2}") if has_pose else None
         if named:
-            pairs.append(_Pair(left_dir / row["left"], right_dir / row["right"], t_ns))
+            pairs.append(_Pair(left_dir / row["left"], right_dir / row["right"], t_ns, pose))
         else:
-            pairs.append(_Pair(left_images[number], right_images[number], t_ns))
+            pairs.append(_Pair(left_images[number], right_images[number], t_ns, pose))
     return pairs
 
 
@@ -148,7 +189,11 @@ class FolderSource:
             bad = pair.left if left is None else pair.right
             raise BrokenFrame(f"{bad}: unreadable image; frame {seq} dropped")
         return StereoFrame(
-            seq, t_capture_ns, _as_uint8(left, pair.left), _as_uint8(right, pair.right)
+            seq,
+            t_capture_ns,
+            _as_uint8(left, pair.left),
+            _as_uint8(right, pair.right),
+            pose=pair.pose,
         )
 
     def close(self) -> None:
