@@ -389,7 +389,8 @@ def build_parser() -> argparse.ArgumentParser:
     ev.add_argument(
         "--matcher",
         action="append",
-        help="sgbm (default), sgbm-nopad, sad, sad-pad, census, segment, opencv-sgbm; repeat",
+        help="sgbm (default), sgbm-gated, sgbm-nopad, sad, sad-pad, census, segment, opencv-sgbm; "
+        "repeat",
     )
     ev.add_argument("--max-scenes", type=int, help="stop after N scenes")
     ev.add_argument("--json", type=Path, help="also write the scores as JSON")

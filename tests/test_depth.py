@@ -9,7 +9,7 @@ from avoidd.sources.scene import FIRST_OBSTACLE_ID, Box, Pole, Scene
 from avoidd.types import RectifiedRig
 from avoidd.vision.depth import depth_from_disparity, disparity_from_depth
 from avoidd.vision.matchers import SgbmMatcher
-from avoidd.vision.postprocess import median_smooth, refine_subpixel
+from avoidd.vision.postprocess import median_smooth, noise_sigma, refine_subpixel, texture_gate
 from avoidd.vision.preprocess import to_grey
 from tests.helpers import noisy_grey_pair
 
@@ -125,3 +125,39 @@ def test_grey_conversion_shapes() -> None:
     assert to_grey(bgr[..., :1]).shape == (4, 5)
     with pytest.raises(ValueError, match="8-bit"):
         to_grey(np.zeros((2, 2), dtype=np.float32))  # type: ignore[arg-type]
+
+
+def _textured_half(noise_std: float, seed: int = 0) -> np.ndarray:
+    """Fine, strong texture on the left half, a smooth ramp on the right, Gaussian noise."""
+    rng = np.random.default_rng(seed)
+    image = np.tile(np.linspace(60.0, 190.0, 320, dtype=np.float32), (240, 1))
+    texture = cv2.GaussianBlur(rng.uniform(0, 255, (240, 160)).astype(np.float32), (0, 0), 0.7)
+    image[:, :160] = texture
+    image += rng.normal(0.0, noise_std, image.shape).astype(np.float32)
+    return np.clip(np.rint(image), 0, 255).astype(np.uint8)
+
+
+@pytest.mark.parametrize("noise_std", [0.7, 1.5, 3.0])
+def test_noise_estimate_is_not_fooled_by_fine_texture(noise_std: float) -> None:
+    grey = _textured_half(noise_std)
+    assert noise_sigma(grey) == pytest.approx(noise_std, rel=0.15)
+    # Averaged over the whole image, the texture would read far above the noise.
+    response = cv2.filter2D(
+        grey.astype(np.float32), -1, np.array([[1, -2, 1], [-2, 4, -2], [1, -2, 1]], np.float32)
+    )[1:-1, 1:-1]
+    whole_image = float(np.sqrt(np.pi / 2.0) / 6.0 * np.mean(np.abs(response)))
+    assert whole_image > 1.5 * noise_std
+
+
+def test_texture_gate_keeps_texture_and_drops_flat_and_horizontal_stripes() -> None:
+    rng = np.random.default_rng(4)
+    image = np.full((120, 240), 128.0, dtype=np.float32)  # flat: the sky
+    image[:, 80:160] = np.tile(rng.uniform(40, 220, (1, 80)), (120, 1))  # vertical structure
+    image[:, 160:] = np.repeat(rng.uniform(40, 220, (120, 1)), 80, axis=1)  # horizontal stripes
+    image += rng.normal(0.0, 1.5, image.shape).astype(np.float32)
+    grey = np.clip(np.rint(image), 0, 255).astype(np.uint8)
+    gate = texture_gate(grey, 7, 1.5)
+    inner = (slice(10, -10),)
+    assert gate[inner][:, 90:150].mean() > 0.95
+    assert gate[inner][:, 5:70].mean() < 0.05
+    assert gate[inner][:, 170:235].mean() < 0.05

@@ -24,22 +24,31 @@ from avoidd.evaluation.metrics import Scores, mean_scores, score
 from avoidd.evaluation.progress import Progress
 from avoidd.types import FloatArray, Image
 from avoidd.vision.matchers import Matcher, create_matcher
-from avoidd.vision.postprocess import median_smooth, refine_subpixel
+from avoidd.vision.postprocess import median_smooth, refine_subpixel, texture_gate
 from avoidd.vision.preprocess import to_grey
 
 Compute = Callable[[Image, Image], FloatArray]
 """Grey left and right views in, disparity out (NaN invalid)."""
 
 
-def _product(matcher: Matcher) -> Compute:
-    """A matcher followed by avoidd's default post-processing, as the pipeline runs it."""
+def _product(matcher: Matcher, gated: bool = False) -> Compute:
+    """A matcher followed by avoidd's default post-processing, as the pipeline runs it.
+
+    Args:
+        matcher: The matcher.
+        gated: Also blank what the texture gate rejects, as obstacle detection sees the map.
+    """
     post = PostprocessConfig()
 
     def compute(left: Image, right: Image) -> FloatArray:
         disparity = matcher.compute(left, right)
         if post.subpixel_refine:
             disparity = refine_subpixel(left, right, disparity, post.refine_window_px)
-        return median_smooth(disparity, post.median_size)
+        disparity = median_smooth(disparity, post.median_size)
+        if gated and post.min_texture_snr > 0:
+            textured = texture_gate(left, post.texture_window_px, post.min_texture_snr)
+            disparity[~textured] = np.nan
+        return disparity
 
     return compute
 
@@ -72,6 +81,10 @@ MATCHERS: dict[str, tuple[str, Callable[[int], Compute]]] = {
     "sgbm": (
         "avoidd's default: SGBM as configured by default, sub-pixel refinement, 5x5 median",
         lambda n: _product(create_matcher(SgbmConfig(num_disparities=n))),
+    ),
+    "sgbm-gated": (
+        "as sgbm, then the texture gate (the map obstacle detection sees)",
+        lambda n: _product(create_matcher(SgbmConfig(num_disparities=n)), gated=True),
     ),
     "sgbm-nopad": (
         "as sgbm, leaving the left border band unmatched (pad_left false)",
