@@ -108,6 +108,22 @@ def test_refinement_keeps_invalid_pixels_invalid() -> None:
     assert np.median(np.abs(inner - 4.0)) < 0.05
 
 
+def test_refinement_leaves_windows_without_gradient_alone() -> None:
+    rng = np.random.default_rng(1)
+    left = np.full((40, 80), 120, dtype=np.uint8)
+    left[:, 50:] = rng.integers(0, 255, (40, 30), dtype=np.uint8)
+    right = np.roll(left, -3, axis=1)
+    disparity = np.full((40, 80), 3.3, dtype=np.float32)
+    disparity[5, 5] = np.nan
+    refined = refine_subpixel(left, right, disparity, 7)
+    # Flat on both sides (away from the warp's zero border on the left): no gradient in the
+    # window, no step (not a division by about zero).
+    assert np.array_equal(refined[:, 9:44], disparity[:, 9:44], equal_nan=True)
+    assert np.isnan(refined[5, 5])
+    # Textured: the step moves toward the true 3 px from the 3.3 px start.
+    assert np.all(refined[10:-10, 58:-8] < 3.3)
+
+
 def test_median_smooth_sizes() -> None:
     data = np.array([[1, 1, 1], [1, 9, 1], [1, 1, np.nan]], dtype=np.float32)
     smoothed = median_smooth(data, 3)

@@ -11,6 +11,7 @@ from avoidd.config import HistogramConfig, PerceptionConfig, SectorsConfig
 from avoidd.mavlink.messages import UNKNOWN_CM, sectors_to_cm
 from avoidd.perception.perceive import perceive
 from avoidd.perception.sectors import (
+    _bins_of_points,
     bin_of_bearing,
     column_bearings_deg,
     covered_bins,
@@ -66,6 +67,22 @@ def test_bin_geometry() -> None:
         bin_bearing_deg(4) == 20.0 and bin_bearing_deg(68) == -20.0 and bin_bearing_deg(36) == 180
     )
     assert wrap_deg(270.0) == -90.0 and wrap_deg(-180.0) == 180.0
+
+
+def test_points_get_the_bin_of_their_bearing_all_round() -> None:
+    rng = np.random.default_rng(3)
+    bearing = rng.uniform(-180.0, 180.0, 20000)
+    bearing = np.concatenate([bearing, [-180.0, 0.0, 90.0, 180.0]])
+    range_m = rng.uniform(0.1, 30.0, bearing.size)
+    forward = (range_m * np.cos(np.radians(bearing))).astype(np.float32)
+    right = (range_m * np.sin(np.radians(bearing))).astype(np.float32)
+    got = _bins_of_points(forward, right)
+    expected = bin_of_bearing(np.degrees(np.arctan2(right.astype(np.float64), forward)))
+    # Float32 may round a bearing within a hair of a bin edge either way; nowhere else.
+    offset = np.abs(np.mod(bearing + 2.5, 5.0) - 2.5)
+    edge = np.abs(offset - 2.5) < 1e-3
+    assert np.array_equal(got[~edge], expected[~edge])
+    assert got.min() >= 0 and got.max() <= 71 and set(got[bearing.size - 4 :]) == {36, 0, 18}
 
 
 def test_obstacle_at_plus_20_degrees_lands_in_bin_4() -> None:

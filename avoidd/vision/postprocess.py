@@ -37,25 +37,25 @@ def refine_subpixel(
         The refined disparity, float32, NaN where the input is NaN.
     """
     height, width = disparity_px.shape
-    invalid = np.isnan(disparity_px)
-    current = disparity_px.astype(np.float32, copy=True)
-    current[invalid] = 0.0
+    # Invalid pixels are warped by zero (any value would do) and stay NaN in the sum below.
+    current = cv2.patchNaNs(disparity_px.astype(np.float32, copy=True), 0.0)
     columns, rows = _pixel_grid(height, width)
     map_x = cv2.subtract(columns, current)
     # Remapping the 8-bit image is twice as fast as remapping floats and loses nothing the
     # one-step fit can use (OpenCV interpolates 8-bit images in fixed point, 1/32 px).
-    warped = np.asarray(cv2.remap(right, map_x, rows, cv2.INTER_LINEAR), np.float32)
+    warped = cv2.remap(right, map_x, rows, cv2.INTER_LINEAR)
     gradient = cv2.Sobel(warped, cv2.CV_32F, 1, 0, ksize=3, scale=0.125)
     residual = cv2.subtract(left, warped, dtype=cv2.CV_32F)
     size = (window_px, window_px)
     numerator = cv2.boxFilter(cv2.multiply(gradient, residual), -1, size, normalize=False)
     denominator = cv2.boxFilter(cv2.multiply(gradient, gradient), -1, size, normalize=False)
+    # Gradients of the 8-bit warp are multiples of 1/8, so a window with any gradient has a
+    # denominator of at least 1/64; below 1e-3 there is none (rounding residue), the
+    # numerator is as small, and the step comes out about zero: nothing to fit.
+    np.maximum(denominator, np.float32(1e-3), out=denominator)
     step = np.asarray(cv2.divide(numerator, denominator, scale=-1.0), np.float32)
-    step[denominator <= 1e-3] = 0.0  # no gradient in the window: nothing to fit
     np.clip(step, -0.5, 0.5, out=step)
-    refined = np.asarray(cv2.add(current, step), np.float32)
-    refined[invalid] = np.nan
-    return refined
+    return np.asarray(cv2.add(disparity_px.astype(np.float32, copy=False), step), np.float32)
 
 
 _GRIDS: dict[tuple[int, int], tuple[FloatArray, FloatArray]] = {}
