@@ -377,9 +377,12 @@ class PostprocessConfig(_Strict):
     """Disparity post-processing after any matcher.
 
     Attributes:
-        subpixel_refine: One Gauss-Newton step that removes the whole-pixel locking of SGBM.
+        subpixel_refine: One Gauss-Newton step along the epipolar line after the matcher
+            (off by default: SGBM and SAD interpolate to 1/16 px themselves, and on the
+            Middlebury scenes the extra step raises their sub-pixel error; see the README).
         refine_window_px: Window of that step (odd).
-        median_size: Median filter on the disparity (0 off, 3 or 5).
+        median_size: Median filter on the disparity over each window's measured pixels (0 off,
+            3 or 5).
         speckle_window_px: An extra speckle pass after refinement: islands smaller than this
             are dropped (0 off; every matcher already removes speckles in its own step).
         speckle_range_px: Disparity step that separates islands in that pass.
@@ -391,7 +394,7 @@ class PostprocessConfig(_Strict):
         texture_window_px: Window of that test (odd).
     """
 
-    subpixel_refine: bool = True
+    subpixel_refine: bool = False
     refine_window_px: int = Field(7, ge=3, le=21)
     median_size: Literal[0, 3, 5] = 5
     speckle_window_px: int = Field(0, ge=0)

@@ -31,14 +31,17 @@ Compute = Callable[[Image, Image], FloatArray]
 """Grey left and right views in, disparity out (NaN invalid)."""
 
 
-def _product(matcher: Matcher, gated: bool = False) -> Compute:
-    """A matcher followed by avoidd's default post-processing, as the pipeline runs it.
+def _product(
+    matcher: Matcher, gated: bool = False, post: PostprocessConfig | None = None
+) -> Compute:
+    """A matcher followed by avoidd's post-processing, as the pipeline runs it.
 
     Args:
         matcher: The matcher.
         gated: Also blank what the texture gate rejects, as obstacle detection sees the map.
+        post: The post-processing (default: the configuration's defaults).
     """
-    post = PostprocessConfig()
+    post = post or PostprocessConfig()
 
     def compute(left: Image, right: Image) -> FloatArray:
         disparity = matcher.compute(left, right)
@@ -79,12 +82,26 @@ def _opencv_sgbm(num_disparities: int) -> Compute:
 
 MATCHERS: dict[str, tuple[str, Callable[[int], Compute]]] = {
     "sgbm": (
-        "avoidd's default: SGBM as configured by default, sub-pixel refinement, 5x5 median",
+        "avoidd's default: SGBM as configured by default, then a 5x5 median",
         lambda n: _product(create_matcher(SgbmConfig(num_disparities=n))),
     ),
     "sgbm-gated": (
         "as sgbm, then the texture gate (the map obstacle detection sees)",
         lambda n: _product(create_matcher(SgbmConfig(num_disparities=n)), gated=True),
+    ),
+    "sgbm-raw": (
+        "SGBM as configured by default, without avoidd's post-processing",
+        lambda n: _product(
+            create_matcher(SgbmConfig(num_disparities=n)),
+            post=PostprocessConfig(median_size=0),
+        ),
+    ),
+    "sgbm-refined": (
+        "as sgbm, plus the optional sub-pixel refinement step (subpixel_refine: true)",
+        lambda n: _product(
+            create_matcher(SgbmConfig(num_disparities=n)),
+            post=PostprocessConfig(subpixel_refine=True),
+        ),
     ),
     "sgbm-nopad": (
         "as sgbm, leaving the left border band unmatched (pad_left false)",

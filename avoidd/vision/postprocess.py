@@ -71,15 +71,41 @@ def _pixel_grid(height: int, width: int) -> tuple[FloatArray, FloatArray]:
     return grid
 
 
+_HOLE_FILL = np.float32(1e6)
+"""Stand-in for holes in the median: far outside any disparity, so it never passes for one."""
+
+_CHECKERS: dict[tuple[int, int], FloatArray] = {}
+
+
+def _checker_fill(height: int, width: int) -> FloatArray:
+    """``+_HOLE_FILL`` and ``-_HOLE_FILL`` in a checkerboard (cached per image size)."""
+    fill = _CHECKERS.get((height, width))
+    if fill is None:
+        parity = (np.arange(height)[:, None] + np.arange(width)[None, :]) % 2
+        fill = _CHECKERS[(height, width)] = np.where(parity == 1, _HOLE_FILL, -_HOLE_FILL).astype(
+            np.float32
+        )
+    return fill
+
+
 def median_smooth(disparity_px: FloatArray, size: int) -> FloatArray:
-    """Median-filter a disparity map, keeping invalid pixels invalid.
+    """Median-filter a disparity map over the measured pixels of each window.
+
+    OpenCV's median has no NaN, so holes go in as a checkerboard of a very low and a very high
+    stand-in. The window's median is then the median of its measured pixels moved by half the
+    difference between its high and low stand-ins, in ranks: at most half a rank where holes
+    fill whole rows or columns of the window (a straight hole edge), more only where they lie
+    on one colour of the board (a diagonal line of holes). Counting holes as one number
+    instead would pull every hole's edge toward that number, and a wire or a pole seen against
+    unmatched sky would vanish. Where the median lands on a stand-in (a window almost all
+    holes), the pixel keeps its own value.
 
     Args:
         disparity_px: Disparity, NaN where invalid.
         size: 3 or 5 (OpenCV's float median); 0 or 1 returns the input.
 
     Returns:
-        The smoothed disparity, float32.
+        The smoothed disparity, float32, NaN exactly where the input is NaN.
 
     Raises:
         ValueError: ``size`` is not 0, 1, 3 or 5.
@@ -88,11 +114,16 @@ def median_smooth(disparity_px: FloatArray, size: int) -> FloatArray:
         return disparity_px.astype(np.float32, copy=False)
     if size not in (3, 5):
         raise ValueError(f"median size must be 0, 3 or 5, got {size}")
-    invalid = np.isnan(disparity_px)
-    filled = cv2.patchNaNs(disparity_px.astype(np.float32, copy=True), 0.0)
-    smoothed = np.asarray(cv2.medianBlur(filled, size), dtype=np.float32)
-    smoothed[invalid] = np.nan
-    return smoothed
+    original = disparity_px.astype(np.float32, copy=False)
+    measured = cv2.compare(original, original, cv2.CMP_EQ)  # 255 where not NaN
+    filled = _checker_fill(*original.shape).copy()
+    cv2.copyTo(original, measured, filled)
+    smoothed = cv2.medianBlur(filled, size)
+    limit = float(_HOLE_FILL / 2)
+    balanced = cv2.inRange(smoothed, -limit, limit)
+    result = original.copy()  # holes stay holes; unbalanced windows keep their own value
+    cv2.copyTo(smoothed, cv2.bitwise_and(balanced, measured), result)
+    return result
 
 
 def left_right_check(
