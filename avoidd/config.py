@@ -383,7 +383,7 @@ class PostprocessConfig(_Strict):
         refine_window_px: Window of that step (odd).
         median_size: Median filter on the disparity over each window's measured pixels (0 off,
             3 or 5).
-        speckle_window_px: An extra speckle pass after refinement: islands smaller than this
+        speckle_window_px: An extra speckle pass after the median: islands smaller than this
             are dropped (0 off; every matcher already removes speckles in its own step).
         speckle_range_px: Disparity step that separates islands in that pass.
         fill_holes: Also produce a hole-filled depth map (``filled_depth_m``, for display and
