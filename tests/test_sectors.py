@@ -11,7 +11,9 @@ from avoidd.config import HistogramConfig, PerceptionConfig, SectorsConfig
 from avoidd.mavlink.messages import UNKNOWN_CM, sectors_to_cm
 from avoidd.perception.perceive import perceive
 from avoidd.perception.sectors import (
+    _beyond_reach,
     _bins_of_points,
+    _sorted_search,
     bin_of_bearing,
     column_bearings_deg,
     covered_bins,
@@ -197,6 +199,52 @@ def test_nearest_cluster_properties(
         # The reported disparity lies in the seed's window and is one of the measured values.
         assert seed - window_px - 1e-4 <= reported <= seed + 1e-4
         assert np.isclose(values, reported, rtol=1e-5).any()
+
+
+@settings(max_examples=60, deadline=None)
+@given(
+    st.integers(0, 2**32 - 1),
+    st.integers(1, 40),
+    st.floats(0.1, 3.0),
+    st.sampled_from([0.0, 0.05 / 0.12, 1.0]),
+)
+def test_dropping_points_out_of_reach_changes_no_cluster(
+    seed: int, min_pixels: int, window_px: float, size_px_per_px: float
+) -> None:
+    # Scattered points behind and in front of a few dense surfaces, as in a frame: the search
+    # on the points left after the histogram cut must give what the search on all of them does.
+    rng = np.random.default_rng(seed)
+    count = int(rng.integers(2000, 12000))
+    bins = [rng.integers(0, 72, count)]
+    disparity = [rng.uniform(0.3, 60.0, count)]
+    for _ in range(int(rng.integers(1, 10))):
+        size = int(rng.integers(5, 800))
+        bins.append(np.full(size, rng.integers(0, 72)))
+        spread = rng.uniform(0.01, 1.5)
+        disparity.append(np.clip(rng.normal(rng.uniform(1.0, 60.0), spread, size), 0.3, None))
+    all_bins = np.concatenate(bins).astype(np.int64)
+    all_disparity = np.concatenate(disparity).astype(np.float32)
+    args = (min_pixels, window_px, size_px_per_px)
+    distance, index = nearest_cluster(all_bins, all_disparity, 48.0, *args)
+    expected, expected_index = _sorted_search(all_bins, all_disparity, 48.0, *args)
+    np.testing.assert_array_equal(distance, expected)
+    found = index >= 0
+    np.testing.assert_array_equal(found, expected_index >= 0)
+    # Ties may swap which point is reported, never its disparity.
+    np.testing.assert_array_equal(all_disparity[index[found]], all_disparity[expected_index[found]])
+
+
+def test_the_cut_drops_the_points_behind_a_dense_surface() -> None:
+    # 3000 points of a wall at d = 10 px and 3000 points far behind it (d < 5 px) in one bin:
+    # the far points cannot matter and are dropped, the wall and anything nearer kept.
+    wall = np.full(3000, 10.0, dtype=np.float32)
+    far = np.linspace(1.0, 5.0, 3000, dtype=np.float32)
+    near = np.array([30.0, 40.0], dtype=np.float32)
+    disparity = np.concatenate([wall, far, near])
+    bins = np.zeros(disparity.size, dtype=np.int64)
+    kept = _beyond_reach(bins, disparity, 20, 0.8, 0.0)
+    assert kept is not None
+    assert set(kept.tolist()) == set(range(3000)) | {6000, 6001}
 
 
 def test_merge_takes_nearest_and_keeps_unknown_where_nobody_sees() -> None:

@@ -204,8 +204,89 @@ def nearest_cluster(
         (72,) distances in metres (NaN where a bin has no cluster) and (72,) the index of the
         reported point in the input (-1 where none).
     """
-    distance = np.full(SECTOR_COUNT, np.nan, dtype=np.float32)
-    chosen = np.full(SECTOR_COUNT, -1, dtype=np.int64)
+    if bins.size < min_pixels:
+        return _no_clusters()
+    kept = _beyond_reach(bins, disparity_px, min_pixels, window_px, min_size_px_per_px)
+    if kept is None:
+        return _sorted_search(
+            bins, disparity_px, focal_baseline, min_pixels, window_px, min_size_px_per_px
+        )
+    distance, chosen = _sorted_search(
+        bins[kept], disparity_px[kept], focal_baseline, min_pixels, window_px, min_size_px_per_px
+    )
+    found = chosen >= 0
+    chosen[found] = kept[chosen[found]]
+    return distance, chosen
+
+
+def _no_clusters() -> tuple[FloatArray, IntArray]:
+    return (
+        np.full(SECTOR_COUNT, np.nan, dtype=np.float32),
+        np.full(SECTOR_COUNT, -1, dtype=np.int64),
+    )
+
+
+_PREFILTER_MIN_POINTS = 2000
+"""Below this many points one sort is cheaper than the histogram that would shorten it."""
+_CELLS_PER_WINDOW = 4
+_MAX_CELLS = 4096
+_CELL_SHRINK = 1.0 - 1e-4
+"""Cells are a hair narrower, so float rounding never stretches a run of them past a window."""
+
+
+def _beyond_reach(
+    bins: IntArray,
+    disparity_px: FloatArray,
+    min_pixels: int,
+    window_px: float,
+    min_size_px_per_px: float,
+) -> npt.NDArray[np.intp] | None:
+    """The points that can take part in their bin's nearest cluster (None: all of them).
+
+    Points are counted in cells a little narrower than a quarter of ``window_px``. Four
+    consecutive cells that together hold as many points as a cluster needs at their near edge
+    make their nearest point a cluster seed, since that point's window covers all four. The
+    bin's nearest cluster therefore starts in those cells or nearer, and its window reaches at
+    most five cells lower: every point below that cannot change the result and is dropped
+    before the sort. Most points of a frame lie behind the first dense surface of their bin.
+    """
+    if bins.size < _PREFILTER_MIN_POINTS:
+        return None
+    per_window = _CELLS_PER_WINDOW
+    width_px = window_px * _CELL_SHRINK / per_window
+    cells = min(int(float(np.max(disparity_px)) / width_px) + 1, _MAX_CELLS)
+    index = (disparity_px * np.float32(1.0 / width_px)).astype(np.int64)
+    np.minimum(index, cells - 1, out=index)  # the top cell also holds everything nearer
+    index += bins * cells
+    counts = np.bincount(index, minlength=SECTOR_COUNT * cells).reshape(SECTOR_COUNT, cells)
+    # Points in the run of cells ending at each cell (the cell and the ones below it).
+    running = np.cumsum(counts, axis=1)
+    runs = running.copy()
+    runs[:, per_window:] -= running[:, :-per_window]
+    # A little past each cell's near edge, to stay on the safe side of float rounding.
+    near_edge_px = (np.arange(cells, dtype=np.float64) + 1.001) * width_px
+    needed = np.maximum(float(min_pixels), (min_size_px_per_px * near_edge_px) ** 2)
+    needed[-1] = np.inf  # the top cell has no near edge
+    dense = runs >= needed[None, :]
+    nearest_dense = cells - 1 - np.argmax(dense[:, ::-1], axis=1)
+    reach = 2 * per_window + 1
+    lowest_kept = np.where(dense.any(axis=1), np.maximum(nearest_dense - reach, 0), 0)
+    if not lowest_kept.any():
+        return None
+    lowest_kept += np.arange(SECTOR_COUNT) * cells
+    return np.flatnonzero(index >= lowest_kept[bins])
+
+
+def _sorted_search(
+    bins: IntArray,
+    disparity_px: FloatArray,
+    focal_baseline: float | np.float32,
+    min_pixels: int,
+    window_px: float,
+    min_size_px_per_px: float,
+) -> tuple[FloatArray, IntArray]:
+    """:func:`nearest_cluster` by one sort of all the points it is given."""
+    distance, chosen = _no_clusters()
     if bins.size < min_pixels:
         return distance, chosen
     # One sort orders points by bin, then by decreasing disparity (nearest first); a key
