@@ -225,3 +225,26 @@ def test_texture_gate_keeps_texture_and_drops_flat_and_horizontal_stripes() -> N
     assert gate[inner][:, 90:150].mean() > 0.95
     assert gate[inner][:, 5:70].mean() < 0.05
     assert gate[inner][:, 170:235].mean() < 0.05
+
+
+@pytest.mark.parametrize("window_px", [3, 7, 15])
+def test_texture_gate_is_the_row_segment_variance_against_the_noise(window_px: int) -> None:
+    # The definition computed the slow way: the variance of every row segment of the window,
+    # averaged over its rows, against min_snr^2 times the noise variance of such a segment.
+    rng = np.random.default_rng(window_px)
+    image = cv2.GaussianBlur(rng.uniform(0, 255, (60, 90)).astype(np.float32), (0, 0), 1.2)
+    image[:, 30:60] = 128.0 + 3.0 * (image[:, 30:60] - 128.0) / 17.0  # faint: near the threshold
+    image[:, 60:] = 128.0  # flat
+    image += rng.normal(0.0, 2.0, image.shape)
+    grey = np.clip(np.rint(image), 0, 255).astype(np.uint8)
+    half = window_px // 2
+    padded = np.pad(grey.astype(np.float64), half, mode="symmetric")  # OpenCV's BORDER_REFLECT
+    windows = np.lib.stride_tricks.sliding_window_view(padded, (window_px, window_px))
+    variance = windows.var(axis=3).mean(axis=2)
+    sigma = noise_sigma(grey)
+    threshold = 1.5**2 * sigma**2 * (1.0 - 1.0 / window_px)
+    gate = texture_gate(grey, window_px, 1.5)
+    clear = np.abs(variance - threshold) > 1e-4 * threshold  # away from float rounding
+    assert clear.mean() > 0.99
+    np.testing.assert_array_equal(gate[clear], (variance >= threshold)[clear])
+    assert 0.05 < gate.mean() < 0.95  # both sides of the threshold are exercised

@@ -194,7 +194,8 @@ def fill_holes(disparity_px: FloatArray) -> FloatArray:
     return np.asarray(np.where(valid, disparity_px, guess), np.float32)
 
 
-_NOISE_KERNEL = np.array([[1.0, -2.0, 1.0], [-2.0, 4.0, -2.0], [1.0, -2.0, 1.0]], dtype=np.float32)
+_NOISE_KERNEL_1D = np.array([1.0, -2.0, 1.0], dtype=np.float32)
+"""Immerkaer's 3x3 kernel is the outer product of this with itself (separable)."""
 
 
 _NOISE_BLOCK_PX = 16
@@ -222,7 +223,8 @@ def noise_sigma(grey: Image) -> float:
     Returns:
         The estimate in grey levels.
     """
-    response = cv2.filter2D(grey.astype(np.float32), -1, _NOISE_KERNEL)[1:-1, 1:-1]
+    kernel = _NOISE_KERNEL_1D
+    response = cv2.sepFilter2D(grey, cv2.CV_32F, kernel, kernel)[1:-1, 1:-1]
     magnitude = np.abs(response)
     height, width = magnitude.shape
     block = _NOISE_BLOCK_PX
@@ -259,12 +261,18 @@ def texture_gate(grey: Image, window_px: int, min_snr: float) -> npt.NDArray[np.
     Returns:
         (H, W) mask, True where the image carries texture along its rows.
     """
-    along = (window_px, 1)
+    n = window_px
+    ones, one = np.ones(n, np.float32), np.ones(1, np.float32)
     border = cv2.BORDER_REFLECT
-    mean = cv2.boxFilter(grey, cv2.CV_32F, along, borderType=border)
-    mean_sq = cv2.sqrBoxFilter(grey, cv2.CV_32F, along, borderType=border)
-    spread = cv2.subtract(mean_sq, cv2.multiply(mean, mean))
-    variance = cv2.boxFilter(spread, -1, (1, window_px), borderType=border)
+    # Unnormalised sums keep every step exact integers in float32 up to the column sum, and
+    # OpenCV's separable filter is two to three times faster than its box filter down columns.
+    total = cv2.sepFilter2D(grey, cv2.CV_32F, ones, one, borderType=border)
+    squares = cv2.multiply(grey, grey, dtype=cv2.CV_32F)
+    total_sq = cv2.sepFilter2D(squares, -1, ones, one, borderType=border)
+    # n^2 times the variance of each row segment: n * sum(x^2) - sum(x)^2.
+    spread = cv2.scaleAdd(total_sq, float(n), cv2.multiply(total, total, scale=-1.0))
+    summed = cv2.sepFilter2D(spread, -1, one, ones, borderType=border)  # n^3 * mean variance
     sigma = noise_sigma(grey)
-    noise_variance = sigma * sigma * (1.0 - 1.0 / window_px)
-    return np.asarray(variance >= np.float32(min_snr * min_snr * noise_variance), dtype=np.bool_)
+    noise_variance = sigma * sigma * (1.0 - 1.0 / n)
+    threshold = min_snr * min_snr * noise_variance * n * n * n
+    return np.asarray(summed >= np.float32(threshold), dtype=np.bool_)
