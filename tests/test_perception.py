@@ -181,9 +181,7 @@ def _kept(
     points = obstacle_points(
         depth, RIG, camera_to_level(Mount(), 0.0, 0.0), height_m, ground, band, max_range_m
     )
-    mask = np.zeros(depth.size, dtype=bool)
-    mask[points.pixels] = True
-    return mask.reshape(depth.shape)
+    return points.mask
 
 
 def test_ground_is_rejected_and_obstacles_kept_even_with_a_pixel_of_disparity_error() -> None:
@@ -242,13 +240,12 @@ def test_obstacle_points_equal_the_per_point_rule(
             & (scale > 0)
             & (far_down <= height - ground.margin_m)
         )
-    got = np.zeros(depth.size, dtype=bool)
-    got[points.pixels] = True
-    disagree = got != expected.ravel()
+    disagree = points.mask != expected
     # Only points on the very edge of a test (float32 against float64) may differ.
     assert np.count_nonzero(disagree) <= max(2, expected.size // 5000)
-    assert np.allclose(points.level.down_m, level.down_m.ravel()[points.pixels], atol=1e-4)
-    assert np.allclose(points.level.right_m, level.right_m.ravel()[points.pixels], atol=1e-4)
+    assert np.allclose(points.level.down_m, level.down_m[points.mask], atol=1e-4)
+    assert np.allclose(points.level.right_m, level.right_m[points.mask], atol=1e-4)
+    assert np.allclose(points.level.forward_m, level.forward_m[points.mask], atol=1e-4)
 
 
 def test_height_band_limits() -> None:

@@ -158,29 +158,3 @@ def axis_per_depth(rig: RectifiedRig, shape: tuple[int, ...], pose: Pose, axis: 
     xn, yn = _normalised(rig, shape[0], shape[1])
     a, b, c = (np.float32(value) for value in pose.rotation[axis])
     return np.asarray((a * xn)[None, :] + (b * yn + c)[:, None], dtype=np.float32)
-
-
-def points_at(
-    depth_m: FloatArray, rig: RectifiedRig, pose: Pose, index: npt.NDArray[np.integer]
-) -> Components:
-    """The 3D points of some pixels only, in the frame of ``pose``.
-
-    Args:
-        depth_m: (H, W) depth along the optical axis.
-        rig: The rig of the depth map.
-        pose: Camera-to-frame pose.
-        index: Flat (row-major) indices of the pixels.
-
-    Returns:
-        Forward, right and down coordinates, (N,) float32 each, in the order of ``index``.
-    """
-    height, width = depth_m.shape
-    xn, yn = _normalised(rig, height, width)
-    rows, columns = np.divmod(index, width)
-    x, y = xn[columns], yn[rows]
-    z = depth_m.reshape(-1)[index]
-    out = []
-    for row, offset in zip(pose.rotation, pose.translation, strict=True):
-        a, b, c = (np.float32(value) for value in row)
-        out.append(np.asarray(z * (a * x + b * y + c) + np.float32(offset), dtype=np.float32))
-    return Components(out[0], out[1], out[2])
