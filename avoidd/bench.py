@@ -5,18 +5,24 @@ Frames are rendered by the synthetic scene at each resolution and pushed through
 stage does real work). In the same run and on the same frames, bare ``StereoSGBM.compute``
 (MODE_SGBM_3WAY, blockSize 5) is timed, and every figure is also given as a ratio to it, so
 that results compare across machines.
+
+A recorded sequence can be timed too (:func:`euroc_frames`): the rendered scene is mostly
+ground and open space, while a camera flying in a room sees walls in most pixels, and the
+obstacle stage's cost grows with the number of obstacle points.
 """
 
 from __future__ import annotations
 
 import statistics
 import time
+from collections.abc import Sequence
 from pathlib import Path
-from typing import Any
+from typing import Any, NamedTuple
 
 import cv2
 import numpy as np
 
+from avoidd.calibrate.importers import euroc_stereo
 from avoidd.config import (
     CensusConfig,
     HeadConfig,
@@ -30,6 +36,7 @@ from avoidd.config import (
     SgbmConfig,
     SyntheticSourceConfig,
 )
+from avoidd.errors import ConfigError
 from avoidd.evaluation.progress import Progress
 from avoidd.mavlink.codec import Codec
 from avoidd.mavlink.messages import sectors_to_cm
@@ -37,7 +44,7 @@ from avoidd.pipeline import HeadPipeline
 from avoidd.sources.scene import render_pair, to_uint8
 from avoidd.sources.synthetic import scene_at
 from avoidd.types import RectifiedRig, StereoFrame
-from avoidd.vision.calibration import Calibration, RectifyMaps
+from avoidd.vision.calibration import Calibration, RectifyMaps, rectify_stereo
 from avoidd.vision.preprocess import to_grey
 from avoidd.vision.rectify import rectify_pair
 
@@ -91,6 +98,63 @@ def _frames(rig: RectifiedRig, count: int) -> list[StereoFrame]:
     return frames
 
 
+class FrameSet(NamedTuple):
+    """Frames to time and the calibration they come with.
+
+    Attributes:
+        source: Name shown in the report (``synthetic`` or the sequence's).
+        calibration: Their calibration (with remap tables: rectify does real work).
+        pairs: The raw stereo pairs.
+    """
+
+    source: str
+    calibration: Calibration
+    pairs: list[StereoFrame]
+
+
+def synthetic_frames(width: int, height: int, count: int) -> FrameSet:
+    """The rendered scene at one resolution, with fresh sensor noise on every frame."""
+    rig = _rig(width, height)
+    return FrameSet("synthetic", Calibration(rig, _maps(rig), Path("bench")), _frames(rig, count))
+
+
+def euroc_frames(folder: Path, count: int) -> FrameSet:
+    """``count`` pairs spread evenly over a EuRoC sequence, with its own calibration.
+
+    Args:
+        folder: The sequence's ``mav0`` folder (or the folder that holds it).
+        count: Pairs to take (at least 1).
+
+    Returns:
+        The frames (grey, native size) and the calibration imported from the sensor files.
+
+    Raises:
+        ConfigError: The folder is not a EuRoC sequence or its images are unreadable.
+    """
+    mav0 = folder / "mav0" if (folder / "mav0").is_dir() else folder
+    left_dir, right_dir = mav0 / "cam0" / "data", mav0 / "cam1" / "data"
+    names = sorted(left_dir.glob("*.png")) if left_dir.is_dir() else []
+    if not names:
+        raise ConfigError(
+            [f"bench --euroc {folder}: no cam0/data/*.png; give a EuRoC sequence's mav0 folder"]
+        )
+    model = euroc_stereo(mav0 / "cam0" / "sensor.yaml", mav0 / "cam1" / "sensor.yaml")
+    rig, maps, rotation = rectify_stereo(model)
+    picked = [names[i] for i in np.linspace(0, len(names) - 1, max(1, count)).astype(int)]
+    pairs = []
+    for seq, name in enumerate(picked):
+        left = cv2.imread(str(name), cv2.IMREAD_GRAYSCALE)
+        right = cv2.imread(str(right_dir / name.name), cv2.IMREAD_GRAYSCALE)
+        if left is None or right is None:
+            raise ConfigError([f"bench --euroc: cannot read the pair {name.name} in {mav0}"])
+        pairs.append(
+            StereoFrame(
+                seq, time.monotonic_ns(), np.asarray(left, np.uint8), np.asarray(right, np.uint8)
+            )
+        )
+    return FrameSet(mav0.parent.name or "euroc", Calibration(rig, maps, mav0, rotation), pairs)
+
+
 def _head(matcher: MatcherConfig) -> HeadConfig:
     # Built without validation: the calibration comes as an object, not a file.
     return HeadConfig.model_construct(
@@ -110,40 +174,51 @@ def run_bench(
     resolutions: tuple[tuple[int, int], ...] = RESOLUTIONS,
     disparities: tuple[int, ...] = DISPARITIES,
     frames: int = 5,
+    recorded: Sequence[FrameSet] = (),
 ) -> list[dict[str, Any]]:
-    """Time every stage for each matcher, resolution, disparity range and thread setting.
+    """Time every stage for each matcher, frame set, disparity range and thread setting.
+
+    Args:
+        matchers: Matcher names.
+        resolutions: Sizes of the rendered frame sets.
+        disparities: Disparity ranges.
+        frames: Rendered frames per size.
+        recorded: Recorded frame sets (see :func:`euroc_frames`), timed after the rendered ones.
 
     Returns:
-        One record per configuration: ``matcher``, ``width``, ``height``, ``disparities``,
-        ``threads``, ``stages_ms`` (medians), ``total_ms``, ``opencv_sgbm_ms`` and the ratios
-        ``match_vs_opencv``, ``total_vs_opencv`` and ``non_match_vs_match``.
+        One record per configuration: ``matcher``, ``source``, ``width``, ``height``,
+        ``disparities``, ``threads``, ``stages_ms`` (medians), ``total_ms``,
+        ``opencv_sgbm_ms`` and the ratios ``match_vs_opencv``, ``total_vs_opencv`` and
+        ``non_match_vs_match``.
     """
     all_threads = cv2.getNumberOfCPUs()
     codec = Codec(1, 196)
     records: list[dict[str, Any]] = []
-    steps = len(resolutions) * len(disparities) * 2 * len(matchers)
+    steps = (len(resolutions) + len(recorded)) * len(disparities) * 2 * len(matchers)
     progress = Progress(steps)
     previous_threads = cv2.getNumThreads()
     try:
-        for width, height in resolutions:
-            rig = _rig(width, height)
-            calibration = Calibration(rig, _maps(rig), Path("bench"))
-            pairs = _frames(rig, frames)
+        sets = [synthetic_frames(w, h, frames) for w, h in resolutions] + list(recorded)
+        for frame_set in sets:
+            rig = frame_set.calibration.rig
             for num_disparities in disparities:
                 for threads in (1, all_threads):
                     cv2.setNumThreads(threads)
-                    baseline_ms = _opencv_sgbm_ms(pairs, calibration, num_disparities)
+                    baseline_ms = _opencv_sgbm_ms(
+                        frame_set.pairs, frame_set.calibration, num_disparities
+                    )
                     for name in matchers:
                         pipeline = HeadPipeline(
-                            _head(_matcher(name, num_disparities)), calibration, 20.0
+                            _head(_matcher(name, num_disparities)), frame_set.calibration, 20.0
                         )
-                        stages = _time_pipeline(pipeline, pairs, codec)
+                        stages = _time_pipeline(pipeline, frame_set.pairs, codec)
                         total = sum(stages.values())
                         records.append(
                             {
                                 "matcher": name,
-                                "width": width,
-                                "height": height,
+                                "source": frame_set.source,
+                                "width": rig.width,
+                                "height": rig.height,
                                 "disparities": num_disparities,
                                 "threads": threads,
                                 "stages_ms": {k: round(v, 3) for k, v in stages.items()},
@@ -156,7 +231,10 @@ def run_bench(
                                 ),
                             }
                         )
-                        progress.step(f"{name} {width}x{height}/{num_disparities} t{threads}")
+                        progress.step(
+                            f"{name} {frame_set.source} {rig.width}x{rig.height}"
+                            f"/{num_disparities} t{threads}"
+                        )
     finally:
         cv2.setNumThreads(previous_threads)
     return records
@@ -209,7 +287,7 @@ def _time_pipeline(
 def format_bench(records: list[dict[str, Any]]) -> str:
     """One row per configuration."""
     head = (
-        f"{'matcher':<8} {'size':>9} {'disp':>4} {'thr':>3} "
+        f"{'matcher':<8} {'frames':<16} {'size':>9} {'disp':>4} {'thr':>3} "
         + " ".join(f"{s[:7]:>7}" for s in STAGES)
         + f" {'total':>7} {'opencv':>7} {'match/cv':>8} {'rest/match':>10}"
     )
@@ -217,7 +295,8 @@ def format_bench(records: list[dict[str, Any]]) -> str:
     for r in records:
         stages = " ".join(f"{r['stages_ms'][s]:7.2f}" for s in STAGES)
         lines.append(
-            f"{r['matcher']:<8} {r['width']:>4}x{r['height']:<4} {r['disparities']:>4} "
+            f"{r['matcher']:<8} {r['source'][:16]:<16} {r['width']:>4}x{r['height']:<4} "
+            f"{r['disparities']:>4} "
             f"{r['threads']:>3} {stages} {r['total_ms']:7.2f} {r['opencv_sgbm_ms']:7.2f} "
             f"{r['match_vs_opencv']:8.2f} {r['non_match_vs_match']:10.2f}"
         )

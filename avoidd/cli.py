@@ -248,12 +248,13 @@ def _cmd_eval(args: argparse.Namespace) -> int:
 def _cmd_bench(args: argparse.Namespace) -> int:
     import json
 
-    from avoidd.bench import DISPARITIES, RESOLUTIONS, format_bench, run_bench
+    from avoidd.bench import DISPARITIES, RESOLUTIONS, euroc_frames, format_bench, run_bench
 
     resolutions = RESOLUTIONS[:2] if args.quick else RESOLUTIONS
     disparities = DISPARITIES[:1] if args.quick else DISPARITIES
+    recorded = [euroc_frames(args.euroc, args.frames)] if args.euroc is not None else []
     records = run_bench(
-        args.matcher or ["sgbm", "sad", "census"], resolutions, disparities, args.frames
+        args.matcher or ["sgbm", "sad", "census"], resolutions, disparities, args.frames, recorded
     )
     print(format_bench(records))
     if args.json is not None:
@@ -420,6 +421,12 @@ def build_parser() -> argparse.ArgumentParser:
     vb.add_argument("--frames", type=int, default=5, help="frames per configuration")
     vb.add_argument("--quick", action="store_true", help="320x240 and 640x480, 64 disparities")
     vb.add_argument("--json", type=Path, help="also write the figures as JSON")
+    vb.add_argument(
+        "--euroc",
+        type=Path,
+        metavar="MAV0",
+        help="also time a recorded EuRoC sequence (its mav0 folder) at its own size",
+    )
     vb.set_defaults(handler=_cmd_bench)
 
     _add_calibration_commands(commands)

@@ -303,3 +303,24 @@ def test_bench_reports_every_stage_and_the_opencv_ratio(tmp_path: Path) -> None:
     out = tmp_path / "bench.json"
     assert main(["bench", "--matcher", "sad", "--quick", "--frames", "1", "--json", str(out)]) == 0
     assert len(json.loads(out.read_text())) == 4  # two sizes x two thread settings
+
+
+def test_bench_times_a_recorded_sequence_with_its_own_calibration(data_dir: Path) -> None:
+    from avoidd.bench import euroc_frames, run_bench
+
+    sequence = euroc_frames(data_dir / "euroc" / "V1_01_easy_micro", 2)
+    assert len(sequence.pairs) == 2 and sequence.pairs[0].left.ndim == 2
+    assert sequence.calibration.maps is not None  # raw images: rectify does real work
+    records = run_bench(["sgbm"], (), (64,), frames=2, recorded=[sequence])
+    assert [r["source"] for r in records] == ["V1_01_easy_micro"] * 2
+    for record in records:
+        assert (record["width"], record["height"]) == (752, 480)
+        assert record["stages_ms"]["rectify"] > 0.0 and record["stages_ms"]["obstacles"] > 0.0
+
+
+def test_bench_refuses_a_folder_that_is_no_sequence(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    assert main(["bench", "--quick", "--frames", "1", "--euroc", str(tmp_path)]) == 2
+    err = capsys.readouterr().err
+    assert str(tmp_path) in err and "mav0" in err
