@@ -123,7 +123,7 @@ def sector_scan(
     range_m = np.sqrt(forward * forward + right * right)  # a third of np.hypot's time
     focal_baseline = np.float32(rig.fx * rig.baseline_m)
     nearest, picked = nearest_cluster(
-        _bins_of_points(candidates.forward_m, candidates.right_m),
+        _bins_of_points(forward, right),
         np.asarray(focal_baseline / np.maximum(range_m, np.float32(1e-3)), np.float32),
         focal_baseline,
         params.min_pixels,
