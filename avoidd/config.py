@@ -176,7 +176,9 @@ class SgbmConfig(_Strict):
     ``pad_left`` matches the left border band (the first ``num_disparities`` columns, which
     OpenCV leaves unmatched) by padding both views with replicated columns; estimates whose match
     would fall in the padding are dropped. The band's disparities are less reliable (a near
-    object there has no match in the right image), so obstacle detection never uses them.
+    object there has no match in the right image), so obstacle detection never uses them; it
+    still pays to pad, because SGBM's paths then reach the pixels right of the band with context
+    (without it the rendered truth suite's p95 range error rose from 5.0 to 6.4%).
     The defaults (pad, uniqueness 5, P2 64 bs^2) were measured over Middlebury 2014 Q, 2003
     and 2001 together (README, "Stereo quality").
     """
