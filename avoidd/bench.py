@@ -50,6 +50,8 @@ from avoidd.vision.rectify import rectify_pair
 
 RESOLUTIONS = ((320, 240), (640, 480), (1280, 720))
 DISPARITIES = (64, 128)
+MATCHERS = ("sgbm", "sad", "census", "segment")
+"""Every matcher the bench knows, in the order it reports them."""
 STAGES = ("rectify", "preprocess", "match", "post", "depth", "obstacles", "encode")
 
 

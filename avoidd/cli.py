@@ -248,13 +248,20 @@ def _cmd_eval(args: argparse.Namespace) -> int:
 def _cmd_bench(args: argparse.Namespace) -> int:
     import json
 
-    from avoidd.bench import DISPARITIES, RESOLUTIONS, euroc_frames, format_bench, run_bench
+    from avoidd.bench import (
+        DISPARITIES,
+        MATCHERS,
+        RESOLUTIONS,
+        euroc_frames,
+        format_bench,
+        run_bench,
+    )
 
     resolutions = RESOLUTIONS[:2] if args.quick else RESOLUTIONS
     disparities = DISPARITIES[:1] if args.quick else DISPARITIES
     recorded = [euroc_frames(args.euroc, args.frames)] if args.euroc is not None else []
     records = run_bench(
-        args.matcher or ["sgbm", "sad", "census"], resolutions, disparities, args.frames, recorded
+        args.matcher or list(MATCHERS), resolutions, disparities, args.frames, recorded
     )
     print(format_bench(records))
     if args.json is not None:
@@ -417,7 +424,12 @@ def build_parser() -> argparse.ArgumentParser:
     vb = commands.add_parser(
         "bench", help="per-stage milliseconds of each matcher next to bare OpenCV SGBM"
     )
-    vb.add_argument("--matcher", action="append", choices=["sgbm", "sad", "census", "segment"])
+    vb.add_argument(
+        "--matcher",
+        action="append",
+        choices=["sgbm", "sad", "census", "segment"],
+        help="time only this matcher (repeat for several; default: all four)",
+    )
     vb.add_argument("--frames", type=int, default=5, help="frames per configuration")
     vb.add_argument("--quick", action="store_true", help="320x240 and 640x480, 64 disparities")
     vb.add_argument("--json", type=Path, help="also write the figures as JSON")

@@ -301,8 +301,13 @@ def test_bench_reports_every_stage_and_the_opencv_ratio(tmp_path: Path) -> None:
             record["stages_ms"]["match"] / record["opencv_sgbm_ms"], rel=0.01
         )
     out = tmp_path / "bench.json"
+    assert main(["bench", "--quick", "--frames", "1", "--json", str(out)]) == 0
+    written = json.loads(out.read_text())
+    # Every matcher by default, each at two sizes with one and all threads.
+    assert len(written) == 16
+    assert sorted({r["matcher"] for r in written}) == ["census", "sad", "segment", "sgbm"]
     assert main(["bench", "--matcher", "sad", "--quick", "--frames", "1", "--json", str(out)]) == 0
-    assert len(json.loads(out.read_text())) == 4  # two sizes x two thread settings
+    assert {r["matcher"] for r in json.loads(out.read_text())} == {"sad"}
 
 
 def test_bench_times_a_recorded_sequence_with_its_own_calibration(data_dir: Path) -> None:
