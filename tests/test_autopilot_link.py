@@ -14,8 +14,8 @@ from typing import Any
 import pytest
 
 from avoidd.daemon import Daemon
+from avoidd.looplag import LagMonitor
 from avoidd.mavlink import codec as mav
-from avoidd.mavlink.bench import LagMonitor
 from avoidd.mavlink.mock_autopilot import MockAutopilot
 from tests.helpers import REPO, free_udp_port, synthetic_config, wait_for
 from tests.helpers import start_daemon as start
@@ -274,12 +274,16 @@ async def test_reconnect_within_two_seconds_and_the_loop_never_blocks(
     startup_s = await _mock_startup_s()
     print(
         f"{kind}: link back {[round(s, 2) for s in back_s]} s after the peer was started, "
-        f"whose own start-up takes {startup_s:.2f} s; max loop lag {lag.max_lag_ms:.1f} ms "
-        f"over {lag.samples} wake-ups"
+        f"whose own start-up takes {startup_s:.2f} s; max loop lag {lag.max_lag_ms:.1f} ms, "
+        f"{lag.max_own_lag_ms:.1f} ms of it not waiting for a CPU, over {lag.samples} wake-ups"
     )
     assert max(back_s) - startup_s < 2.0, (back_s, startup_s)
     assert lag.samples > 100
-    assert lag.max_lag_ms <= 20.0
+    # The loop never blocks: of each wake-up's lateness, what is left after the time our
+    # threads waited for a CPU (another process's load, not ours) stays small. A blocking
+    # connect or read in the loop would show here in full (tests/test_looplag.py).
+    assert lag.accounted
+    assert lag.max_own_lag_ms <= 20.0
 
 
 async def _mock_startup_s() -> float:
