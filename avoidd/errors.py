@@ -33,3 +33,7 @@ class SourceExhausted(AvoiddError):
 
 class LinkError(AvoiddError):
     """A MAVLink connection string is invalid or the link cannot be opened."""
+
+
+class MeasureError(AvoiddError):
+    """A measurement cannot be made (no frame, pixel unmeasured, ray above the horizon)."""

@@ -165,8 +165,8 @@ async def wait_for(predicate: Any, timeout_s: float, step_s: float = 0.02) -> bo
 
 async def start_daemon(config_path: Path) -> tuple[Any, asyncio.Task[int]]:
     """Load a config and run the daemon in this event loop."""
-    from avoidd.cli import load_all
     from avoidd.daemon import Daemon
+    from avoidd.loading import load_all
 
     config, calibrations = load_all(config_path)
     daemon = Daemon(config, calibrations)

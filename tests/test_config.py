@@ -6,9 +6,10 @@ from pathlib import Path
 
 import pytest
 
-from avoidd.cli import load_all, main
+from avoidd.cli import main
 from avoidd.config import load_config
 from avoidd.errors import ConfigError
+from avoidd.loading import load_all
 from avoidd.mavlink.url import LinkSpec, parse_connection
 from tests.helpers import REPO
 

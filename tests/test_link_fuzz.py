@@ -11,9 +11,9 @@ import pytest
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
-from avoidd.cli import load_all
 from avoidd.config import MavlinkConfig
 from avoidd.daemon import Daemon
+from avoidd.loading import load_all
 from avoidd.mavlink import codec as mav
 from avoidd.mavlink.link import MavLink
 from avoidd.mavlink.mock_autopilot import MockAutopilot

@@ -12,8 +12,8 @@ from typing import Any
 
 import pytest
 
-from avoidd.cli import load_all
 from avoidd.daemon import Daemon
+from avoidd.loading import load_all
 from avoidd.mavlink import codec as mav
 from tests.helpers import MavlinkPeer, open_udp_peer, synthetic_config, wait_for
 

@@ -8,8 +8,8 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from avoidd.cli import load_all
 from avoidd.errors import ConfigError
+from avoidd.loading import load_all
 from avoidd.mavlink.codec import Codec
 from avoidd.mavlink.messages import (
     UNKNOWN_CM,

@@ -8,9 +8,9 @@ from typing import Any
 import numpy as np
 import pytest
 
-from avoidd.cli import load_all
 from avoidd.config import SegmentConfig
 from avoidd.evaluation.metrics import score
+from avoidd.loading import load_all
 from avoidd.pipeline import HeadPipeline
 from avoidd.sources import open_source
 from avoidd.vision.matchers import create_matcher

@@ -287,7 +287,7 @@ def test_default_post_processing_does_no_harm_on_real_images(data_dir: Path) -> 
 
 
 def test_bench_reports_every_stage_and_the_opencv_ratio(tmp_path: Path) -> None:
-    from avoidd.bench import STAGES, run_bench
+    from avoidd.bench.vision import STAGES, run_bench
 
     records = run_bench(["sgbm", "census"], ((320, 240),), (64,), frames=2)
     assert len(records) == 4  # two matchers, single thread and all threads
@@ -311,7 +311,7 @@ def test_bench_reports_every_stage_and_the_opencv_ratio(tmp_path: Path) -> None:
 
 
 def test_bench_times_a_recorded_sequence_with_its_own_calibration(data_dir: Path) -> None:
-    from avoidd.bench import euroc_frames, run_bench
+    from avoidd.bench.vision import euroc_frames, run_bench
 
     sequence = euroc_frames(data_dir / "euroc" / "V1_01_easy_micro", 2)
     assert len(sequence.pairs) == 2 and sequence.pairs[0].left.ndim == 2

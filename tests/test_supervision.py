@@ -10,9 +10,9 @@ import numpy as np
 import pytest
 
 import avoidd.daemon
-from avoidd.cli import load_all
 from avoidd.daemon import Daemon
 from avoidd.errors import SourceError
+from avoidd.loading import load_all
 from avoidd.sources import open_source as real_open_source
 from avoidd.types import StereoFrame
 from tests.helpers import open_udp_peer, synthetic_config, wait_for

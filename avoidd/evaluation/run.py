@@ -21,7 +21,7 @@ from avoidd.config import (
 from avoidd.errors import ConfigError
 from avoidd.evaluation.datasets import Scene, find_scenes
 from avoidd.evaluation.metrics import Scores, mean_scores, score
-from avoidd.evaluation.progress import Progress
+from avoidd.progress import Progress
 from avoidd.types import FloatArray, Image
 from avoidd.vision.matchers import Matcher, create_matcher
 from avoidd.vision.postprocess import median_smooth, refine_subpixel, texture_gate

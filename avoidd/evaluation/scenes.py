@@ -19,8 +19,8 @@ from typing import Any
 import numpy as np
 
 from avoidd.config import HeadConfig, PerceptionConfig
-from avoidd.perception.commands import camera_geometry
 from avoidd.perception.geometry import ground_range
+from avoidd.perception.measure import camera_geometry
 from avoidd.perception.sectors import bin_of_bearing
 from avoidd.pipeline import HeadPipeline
 from avoidd.sources.scene import FIRST_OBSTACLE_ID, Box, Pole, Scene, render_pair, to_uint8
@@ -218,7 +218,7 @@ def _contact_errors(pipeline: HeadPipeline, result: Any, truth: Any) -> list[flo
     where stereo smears depth across the silhouette's side edges from deciding it. Only where
     the paper's model holds: the camera is not rolled (its formulas have no roll).
     """
-    geometry = camera_geometry(pipeline, result)
+    geometry = camera_geometry(pipeline.mount, pipeline.rectified_from_raw, result.pose)
     if abs(geometry.roll_deg) > 0.5:
         return []
     ids = truth.object_id

@@ -37,10 +37,10 @@ from avoidd.config import (
     SyntheticSourceConfig,
 )
 from avoidd.errors import ConfigError
-from avoidd.evaluation.progress import Progress
 from avoidd.mavlink.codec import Codec
 from avoidd.mavlink.messages import sectors_to_cm
 from avoidd.pipeline import HeadPipeline
+from avoidd.progress import Progress
 from avoidd.sources.scene import render_pair, to_uint8
 from avoidd.sources.synthetic import scene_at
 from avoidd.types import RectifiedRig, StereoFrame

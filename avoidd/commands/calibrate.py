@@ -1,7 +1,9 @@
-"""The calibration commands: ``calibrate``, ``import-calibration`` and ``check-rectification``."""
+"""The calibration commands: calibrate, render-board, import-calibration, check-rectification."""
 
 from __future__ import annotations
 
+import argparse
+import json
 from collections.abc import Iterator
 from datetime import UTC, datetime
 from pathlib import Path
@@ -12,6 +14,7 @@ import numpy as np
 from avoidd.calibrate.board import Board, detect
 from avoidd.calibrate.check import matched_dy_px, rectify_pair
 from avoidd.calibrate.importers import euroc_stereo, middlebury_rectified
+from avoidd.calibrate.render import default_rig, write_pairs
 from avoidd.calibrate.stereo import (
     PairObservation,
     PairReport,
@@ -19,14 +22,82 @@ from avoidd.calibrate.stereo import (
     calibrate,
     observe_pair,
 )
+from avoidd.commands import EXIT_OK
 from avoidd.errors import ConfigError, SourceError
-from avoidd.evaluation.progress import Progress
+from avoidd.progress import Progress
 from avoidd.sources.files import list_pairs
 from avoidd.types import Image
 from avoidd.vision.calibration import load_calibration, write_calibration
 
 # The rectification check warns above this mean |dy| of matched corners.
 DY_WARN_PX = 0.5
+
+
+def _add_board_options(parser: argparse.ArgumentParser) -> None:
+    parser.add_argument("--pattern", choices=["chessboard", "charuco"], default="chessboard")
+    parser.add_argument(
+        "--squares", default="10x7", help="squares across x down (a 10x7 board has 9x6 corners)"
+    )
+    parser.add_argument("--square-mm", type=float, default=25.0, help="side of one square, mm")
+    parser.add_argument("--marker-mm", type=float, help="ChArUco marker side, mm")
+    parser.add_argument("--dictionary", default="DICT_4X4_50", help="ChArUco ArUco dictionary")
+
+
+def configure(name: str, parser: argparse.ArgumentParser) -> None:
+    """Add the options of one of the calibration commands."""
+    if name == "calibrate":
+        parser.add_argument("folder", type=Path, help="folder with left/ and right/ image pairs")
+        _add_board_options(parser)
+        parser.add_argument("--out", type=Path, required=True, help="calibration YAML to write")
+        parser.set_defaults(handler=_cmd_calibrate)
+    elif name == "render-board":
+        parser.add_argument("folder", type=Path, help="where left/ and right/ are written")
+        _add_board_options(parser)
+        parser.add_argument("--count", type=int, default=15, help="number of pairs")
+        parser.add_argument("--seed", type=int, default=0)
+        parser.set_defaults(handler=_cmd_render_board)
+    elif name == "import-calibration":
+        parser.add_argument("kind", choices=["euroc", "middlebury"])
+        parser.add_argument(
+            "files", type=Path, nargs="+", help="cam0 and cam1 sensor.yaml, or calib.txt"
+        )
+        parser.add_argument("--out", type=Path, required=True, help="calibration YAML to write")
+        parser.set_defaults(handler=_cmd_import_calibration)
+    else:
+        parser.add_argument("--calibration", type=Path, required=True, help="calibration YAML")
+        parser.add_argument(
+            "folder", type=Path, help="left/ + right/ folder, or a EuRoC mav0 folder"
+        )
+        parser.add_argument("--max-pairs", type=int, default=20, help="pairs to sample")
+        parser.add_argument("--json", type=Path, help="also write the figures as JSON")
+        parser.set_defaults(handler=_cmd_check_rectification)
+
+
+def _board(args: argparse.Namespace) -> Board:
+    return make_board(args.pattern, args.squares, args.square_mm, args.marker_mm, args.dictionary)
+
+
+def _cmd_calibrate(args: argparse.Namespace) -> int:
+    run_calibrate(args.folder, _board(args), args.out)
+    return EXIT_OK
+
+
+def _cmd_render_board(args: argparse.Namespace) -> int:
+    write_pairs(args.folder, _board(args), default_rig(), args.count, args.seed)
+    print(f"wrote {args.count} pairs to {args.folder}/left and {args.folder}/right")
+    return EXIT_OK
+
+
+def _cmd_import_calibration(args: argparse.Namespace) -> int:
+    run_import(args.kind, args.files, args.out)
+    return EXIT_OK
+
+
+def _cmd_check_rectification(args: argparse.Namespace) -> int:
+    figures = run_check(args.calibration, args.folder, args.max_pairs)
+    if args.json is not None:
+        args.json.write_text(json.dumps(figures, indent=2) + "\n")
+    return EXIT_OK
 
 
 def parse_grid(text: str, what: str) -> tuple[int, int]:

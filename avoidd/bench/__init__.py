@@ -1,0 +1,1 @@
+"""Benchmarks that print figures: vision stages (``bench``) and MAVLink input (``bench-link``)."""

@@ -1,0 +1,72 @@
+"""``avoidd bench`` (vision stages next to bare OpenCV SGBM) and ``avoidd bench-link``."""
+
+from __future__ import annotations
+
+import argparse
+import asyncio
+import json
+from pathlib import Path
+
+from avoidd.commands import EXIT_OK
+
+
+def configure(name: str, parser: argparse.ArgumentParser) -> None:
+    """Add the options of ``bench`` or ``bench-link``."""
+    if name == "bench":
+        parser.add_argument(
+            "--matcher",
+            action="append",
+            choices=["sgbm", "sad", "census", "segment"],
+            help="time only this matcher (repeat for several; default: all four)",
+        )
+        parser.add_argument("--frames", type=int, default=5, help="frames per configuration")
+        parser.add_argument(
+            "--quick", action="store_true", help="320x240 and 640x480, 64 disparities"
+        )
+        parser.add_argument("--json", type=Path, help="also write the figures as JSON")
+        parser.add_argument(
+            "--euroc",
+            type=Path,
+            metavar="MAV0",
+            help="also time a recorded EuRoC sequence (its mav0 folder) at its own size",
+        )
+        parser.set_defaults(handler=run_vision_bench)
+    else:
+        parser.add_argument("--rate", type=float, default=2000.0, help="messages per second")
+        parser.add_argument("--seconds", type=float, default=5.0, help="measurement length")
+        parser.add_argument("--json", type=Path, help="also write the figures as JSON")
+        parser.set_defaults(handler=run_link_bench)
+
+
+def run_vision_bench(args: argparse.Namespace) -> int:
+    """Time the pipeline's stages and print the table."""
+    from avoidd.bench.vision import (
+        DISPARITIES,
+        MATCHERS,
+        RESOLUTIONS,
+        euroc_frames,
+        format_bench,
+        run_bench,
+    )
+
+    resolutions = RESOLUTIONS[:2] if args.quick else RESOLUTIONS
+    disparities = DISPARITIES[:1] if args.quick else DISPARITIES
+    recorded = [euroc_frames(args.euroc, args.frames)] if args.euroc is not None else []
+    records = run_bench(
+        args.matcher or list(MATCHERS), resolutions, disparities, args.frames, recorded
+    )
+    print(format_bench(records))
+    if args.json is not None:
+        args.json.write_text(json.dumps(records, indent=2) + "\n")
+    return EXIT_OK
+
+
+def run_link_bench(args: argparse.Namespace) -> int:
+    """Measure the CPU of decoding a busy incoming stream and print it."""
+    from avoidd.bench.link import format_report, run_bench
+
+    report = asyncio.run(run_bench(args.rate, args.seconds))
+    print(format_report(report))
+    if args.json is not None:
+        args.json.write_text(json.dumps(report, indent=2) + "\n")
+    return EXIT_OK

@@ -1,0 +1,53 @@
+"""``avoidd eval`` (matchers on data with ground truth) and ``avoidd eval-perception``."""
+
+from __future__ import annotations
+
+import argparse
+import json
+from pathlib import Path
+
+from avoidd.commands import EXIT_OK
+from avoidd.evaluation.run import evaluate, format_runs
+from avoidd.evaluation.scenes import contact_suite, run_suite, suite
+
+
+def configure(name: str, parser: argparse.ArgumentParser) -> None:
+    """Add the options of ``eval`` or ``eval-perception``."""
+    if name == "eval":
+        parser.add_argument(
+            "path", type=Path, help="a scene folder, a dataset folder, or a folder of them"
+        )
+        parser.add_argument(
+            "--matcher",
+            action="append",
+            help="sgbm (default), sgbm-gated, sgbm-nopad, sad, sad-pad, census, segment, "
+            "opencv-sgbm; repeat",
+        )
+        parser.add_argument("--max-scenes", type=int, help="stop after N scenes")
+        parser.add_argument("--json", type=Path, help="also write the scores as JSON")
+        parser.set_defaults(handler=run_eval)
+    else:
+        parser.add_argument("--scenes", type=int, default=24, help="obstacle scenes (default 24)")
+        parser.add_argument("--seed", type=int, default=2024, help="scene generator seed")
+        parser.add_argument(
+            "--contact-scenes", type=int, default=12, help="roll-free contact scenes"
+        )
+        parser.set_defaults(handler=run_eval_perception)
+
+
+def run_eval(args: argparse.Namespace) -> int:
+    """Score the matchers and print (and optionally write) the table."""
+    runs = evaluate(args.path, args.matcher or ["sgbm"], args.max_scenes)
+    print(format_runs(runs))
+    if args.json is not None:
+        payload = [run.as_json() for run in runs]
+        document = payload[0] if len(payload) == 1 else payload
+        args.json.write_text(json.dumps(document, indent=2) + "\n")
+    return EXIT_OK
+
+
+def run_eval_perception(args: argparse.Namespace) -> int:
+    """Score perception on the rendered suites and print the summary."""
+    summary = run_suite(suite(args.scenes, args.seed) + contact_suite(args.contact_scenes))
+    print(summary.format())
+    return EXIT_OK

@@ -1,0 +1,37 @@
+"""``avoidd replay``: every frame of a head's source through the pipeline, into JSON lines."""
+
+from __future__ import annotations
+
+import argparse
+from pathlib import Path
+
+from avoidd.commands import EXIT_OK
+from avoidd.errors import ConfigError
+from avoidd.loading import load_all
+from avoidd.replay import format_summary, replay, select_head
+
+
+def configure(name: str, parser: argparse.ArgumentParser) -> None:
+    """Add the options of ``replay``."""
+    parser.add_argument("--config", type=Path, required=True, help="YAML configuration file")
+    parser.add_argument(
+        "--input", type=Path, help="folder of left/right pairs or side-by-side video"
+    )
+    parser.add_argument("--max-frames", type=int, help="stop after N frames")
+    parser.add_argument("--head", help="head to replay (default: the first)")
+    parser.add_argument("--out", type=Path, required=True, help="output .jsonl file")
+    parser.set_defaults(handler=run_replay)
+
+
+def run_replay(args: argparse.Namespace) -> int:
+    """Replay one head and print the summary."""
+    config, calibrations = load_all(args.config)
+    head = select_head(config, args.head)
+    if args.input is not None and not args.input.exists():
+        raise ConfigError([f"--input {args.input}: not found; give a folder or a video file"])
+    args.out.parent.mkdir(parents=True, exist_ok=True)
+    with args.out.open("w", encoding="utf-8") as out:
+        summary = replay(config, calibrations[head.name], head, out, args.input, args.max_frames)
+    print(format_summary(summary))
+    print(f"wrote {summary.frames} lines to {args.out}")
+    return EXIT_OK
