@@ -346,4 +346,4 @@ async def test_signing(tmp_path: Path, peer_key: str) -> None:
         await stop(daemon, task)
         await autopilot.stop()
     stored = int(stamp.read_text())
-    assert stored > daemon._codec.signing_timestamp  # the mark stays ahead of what was used
+    assert stored > daemon.codec.signing_timestamp  # the mark stays ahead of what was used

@@ -5,7 +5,7 @@ from __future__ import annotations
 
 import asyncio
 
-from avoidd.daemon import _Announcer
+from avoidd.daemon import Announcer
 from avoidd.mavlink import codec as mav
 from avoidd.mavlink.link import MavLink
 from avoidd.mavlink.url import parse_connection
@@ -52,7 +52,7 @@ async def test_sending_while_the_link_is_down_drops_and_counts() -> None:
 
 
 async def test_statustext_about_one_subject_keeps_only_the_latest_waiting() -> None:
-    announcer = _Announcer(asyncio.get_running_loop())
+    announcer = Announcer(asyncio.get_running_loop())
     announcer(2, "avoidd: front camera lost", "camera front")
     announcer(5, "avoidd: front camera back", "camera front")
     announcer(2, "avoidd: rear camera lost", "camera rear")

@@ -9,8 +9,7 @@ from typing import Any
 import numpy as np
 import pytest
 
-import avoidd.daemon
-from avoidd.daemon import Daemon
+from avoidd.daemon import Daemon, build_link
 from avoidd.errors import SourceError
 from avoidd.loading import load_all
 from avoidd.sources import open_source as real_open_source
@@ -43,9 +42,7 @@ class FlakyCamera:
         self._inner.close()
 
 
-async def test_lost_camera_is_reopened_with_backoff_and_reported(
-    tmp_path: Path, monkeypatch: pytest.MonkeyPatch
-) -> None:
+async def test_lost_camera_is_reopened_with_backoff_and_reported(tmp_path: Path) -> None:
     opens: list[float] = []
     loop = asyncio.get_running_loop()
 
@@ -55,10 +52,9 @@ async def test_lost_camera_is_reopened_with_backoff_and_reported(
             raise SourceError("camera 'front': /dev/video0 does not exist; is it plugged in?")
         return FlakyCamera(real_open_source(*args, **kwargs), 12 if len(opens) == 3 else None)
 
-    monkeypatch.setattr(avoidd.daemon, "open_source", flaky_open)
     peer = await open_udp_peer()
     config, calibrations = load_all(synthetic_config(tmp_path, f"udpout:127.0.0.1:{peer.port}"))
-    daemon = Daemon(config, calibrations)
+    daemon = Daemon(config, calibrations, open_source=flaky_open)
     task = asyncio.create_task(daemon.run())
     try:
         assert await wait_for(lambda: len(opens) >= 4, 20.0), f"opened {len(opens)} times"
@@ -92,9 +88,25 @@ async def test_a_dead_task_stops_the_daemon_with_an_error(
     peer = await open_udp_peer()
     config, calibrations = load_all(synthetic_config(tmp_path, f"udpout:127.0.0.1:{peer.port}"))
     daemon = Daemon(config, calibrations)
-    monkeypatch.setattr(daemon._codec, "obstacle_distance", broken_encoder)
+    monkeypatch.setattr(daemon.codec, "obstacle_distance", broken_encoder)
     try:
         code = await asyncio.wait_for(daemon.run(), timeout=10.0)
     finally:
         peer.close()
     assert code == 1
+
+
+async def test_an_injected_link_is_the_one_used(tmp_path: Path) -> None:
+    peer = await open_udp_peer()
+    config, calibrations = load_all(synthetic_config(tmp_path, f"udpout:127.0.0.1:{peer.port}"))
+    link = build_link(config.mavlink)
+    daemon = Daemon(config, calibrations, link=link)
+    assert daemon.link is link and daemon.codec is link.codec
+    task = asyncio.create_task(daemon.run())
+    try:
+        assert await wait_for(lambda: link.sent["OBSTACLE_DISTANCE"] >= 3, 10.0)
+        assert len(peer.of_type("OBSTACLE_DISTANCE")) >= 1
+    finally:
+        daemon.stop()
+        assert await asyncio.wait_for(task, timeout=10.0) == 0
+        peer.close()

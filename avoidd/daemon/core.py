@@ -1,0 +1,270 @@
+"""The daemon: composes heads, link, outputs and reports, supervises their tasks, shuts down."""
+
+from __future__ import annotations
+
+import asyncio
+import contextlib
+import logging
+import signal
+import threading
+import time
+from collections import Counter
+from collections.abc import Coroutine
+from typing import Any
+
+from avoidd import sources
+from avoidd.config import AppConfig, MavlinkConfig
+from avoidd.daemon import health
+from avoidd.daemon.announce import Announcer, send_statustext
+from avoidd.daemon.head import Head, OpenSource
+from avoidd.daemon.outputs import Outputs
+from avoidd.daemon.stats import DaemonStats, log_every, snapshot
+from avoidd.errors import AvoiddError
+from avoidd.mavlink import codec as mav
+from avoidd.mavlink.link import MavLink
+from avoidd.mavlink.signing import TimestampStore, load_key
+from avoidd.mavlink.vehicle import Vehicle
+from avoidd.perception.pose import resolve_pose
+from avoidd.types import FramePose, StereoFrame
+from avoidd.vision.calibration import Calibration
+
+logger = logging.getLogger(__name__)
+
+_SIGNING_KEEP_S = 5.0
+
+
+def build_link(config: MavlinkConfig) -> MavLink:
+    """The link a daemon uses by default: the configured connection with an unsigned codec.
+
+    Args:
+        config: The ``mavlink`` section.
+
+    Returns:
+        The link (not opened); the daemon enables signing on its codec if configured.
+    """
+    return MavLink(config.link, mav.Codec(config.fixed_system_id or 1, config.component_id))
+
+
+class Daemon:
+    """Wires the heads to the MAVLink link and runs until stopped.
+
+    Args:
+        config: The validated configuration.
+        calibrations: Loaded calibration of every head, by head name.
+        open_source: Opens a head's source, with the signature of
+            :func:`avoidd.sources.open_source` (the default).
+        link: The MAVLink link, not yet opened; by default :func:`build_link` of the config.
+            If ``mavlink.signing`` is configured, the daemon enables signing on its codec.
+
+    Attributes:
+        config: The configuration.
+        link: The MAVLink link.
+        codec: The link's codec (its ids and signing).
+        vehicle: The autopilot on the link.
+        heads: The heads, built when :meth:`run` starts.
+    """
+
+    def __init__(
+        self,
+        config: AppConfig,
+        calibrations: dict[str, Calibration],
+        *,
+        open_source: OpenSource | None = None,
+        link: MavLink | None = None,
+    ) -> None:
+        self.config = config
+        self._calibrations = calibrations
+        self._open_source: OpenSource = (
+            open_source if open_source is not None else sources.open_source
+        )
+        self._stop_threads = threading.Event()
+        self._stopping = asyncio.Event()
+        self.heads: list[Head] = []
+        mavlink = config.mavlink
+        self.link = link if link is not None else build_link(mavlink)
+        self.codec = self.link.codec
+        self._timestamps = TimestampStore(None)
+        if mavlink.signing is not None:
+            signing = mavlink.signing
+            key = load_key(signing.key_file, signing.key_credential)
+            allowed = {mav.message_id(name) for name in signing.allow_unsigned}
+            self._timestamps = TimestampStore(signing.timestamp_file)
+            self.codec.enable_signing(
+                key, self._timestamps.start(), allowed.__contains__, signing.link_id
+            )
+        self._announcer: Announcer | None = None
+        self.vehicle = Vehicle(self.link, mavlink, self.announce)
+        self._max_age_ns = config.pipeline.max_age_ms * 1_000_000
+        self._stale: frozenset[str] = frozenset()
+        self._started_ns = 0
+
+    @property
+    def sent(self) -> Counter[str]:
+        """Messages sent, by type."""
+        return self.link.sent
+
+    @property
+    def received(self) -> Counter[str]:
+        """Messages received (any system), by type."""
+        return self.link.received
+
+    def stop(self) -> None:
+        """Ask the daemon to shut down (safe from signal handlers in the loop)."""
+        self._stopping.set()
+
+    def announce(self, severity: int, text: str, key: str | None = None) -> None:
+        """Report an event as STATUSTEXT (dropped before :meth:`run` has started)."""
+        if self._announcer is not None:
+            self._announcer(severity, text, key)
+
+    def pose_for(self, frame: StereoFrame) -> FramePose:
+        """Attitude and height for a frame (see :func:`avoidd.perception.pose.resolve_pose`)."""
+        vehicle = self.vehicle
+        return resolve_pose(
+            frame.t_capture_ns,
+            frame.pose,
+            vehicle.attitude_at(frame.t_capture_ns),
+            vehicle.rangefinder,
+            vehicle.position,
+            self.config.perception,
+        )
+
+    def snapshot(self, now_ns: int, previous: DaemonStats | None = None) -> DaemonStats:
+        """The daemon's counters now (see :func:`avoidd.daemon.stats.snapshot`)."""
+        return snapshot(self.heads, self.link, self.vehicle, now_ns, self._max_age_ns, previous)
+
+    async def run(self) -> int:
+        """Run until SIGINT/SIGTERM or :meth:`stop`.
+
+        Returns:
+            The process exit code: 0 on a clean shutdown, 1 if a task died.
+        """
+        loop = asyncio.get_running_loop()
+        for signum in (signal.SIGINT, signal.SIGTERM):
+            with contextlib.suppress(NotImplementedError, RuntimeError):
+                loop.add_signal_handler(signum, self.stop)
+        announcer = Announcer(loop)
+        max_range_m = self.config.mavlink.obstacle_distance.max_distance_cm / 100.0
+        self.heads = [
+            Head(
+                h,
+                self._calibrations[h.name],
+                max_range_m,
+                loop,
+                self._stop_threads,
+                announcer,
+                self.config.perception,
+                self.pose_for,
+                self._open_source,
+            )
+            for h in self.config.heads
+        ]
+        self._announcer = announcer
+        try:
+            await self.link.open()
+        except AvoiddError as exc:
+            logger.error("%s", exc)
+            return 1
+        self._started_ns = time.monotonic_ns()
+        mavlink = self.config.mavlink
+        logger.info(
+            "avoidd started: %d head(s) [%s], MAVLink %s as %s/%d%s",
+            len(self.heads),
+            ", ".join(h.name for h in self.heads),
+            mavlink.link,
+            mavlink.system_id,
+            mavlink.component_id,
+            ", signed" if mavlink.signing else "",
+        )
+        announcer(mav.MAV_SEVERITY_INFO, "avoidd started")
+        for head in self.heads:
+            head.start()
+        tasks = [
+            asyncio.create_task(head.compute(), name=f"compute-{head.name}") for head in self.heads
+        ]
+        tasks += [
+            asyncio.create_task(coro, name=name) for name, coro in self._loops(announcer).items()
+        ]
+        stopping = asyncio.create_task(self._stopping.wait(), name="stopping")
+        code = 0
+        try:
+            done, _ = await asyncio.wait([stopping, *tasks], return_when=asyncio.FIRST_COMPLETED)
+            crashed = [task for task in done if task is not stopping]
+            for task in crashed:
+                # These tasks never end on their own: one that did is a bug, and running on
+                # without it (say, without the send loop) would be flying blind. Exit non-zero
+                # so that the service manager restarts avoidd.
+                error = None if task.cancelled() else task.exception()
+                logger.critical("task '%s' ended unexpectedly: %r", task.get_name(), error)
+                code = 1
+        finally:
+            logger.info("avoidd stopping")
+            stopping.cancel()
+            self._stop_threads.set()
+            for task in tasks:
+                task.cancel()
+            await asyncio.gather(*tasks, return_exceptions=True)
+            for head in self.heads:
+                await asyncio.to_thread(head.join, 5.0)
+            await asyncio.sleep(0.05)  # let the sender flush what is queued
+            await self.link.close()
+            self._timestamps.keep(self.codec.signing_timestamp)
+        logger.info("avoidd stopped; MAVLink %s", self.link.counters())
+        return code
+
+    def _loops(self, announcer: Announcer) -> dict[str, Coroutine[Any, Any, None]]:
+        """The long-running loops besides the heads' compute tasks, by task name."""
+        outputs = Outputs(
+            self.config.mavlink,
+            self.config.pipeline.max_age_ms,
+            self.heads,
+            self.link,
+            self.vehicle,
+        )
+        loops = outputs.loops()
+        loops["heartbeat"] = self._heartbeat_loop()
+        loops["statustext"] = send_statustext(announcer, self.link, self._check_staleness)
+        loops["log"] = log_every(
+            self.config.pipeline.log_interval_s,
+            lambda previous: self.snapshot(time.monotonic_ns(), previous),
+        )
+        loops["vehicle"] = self.vehicle.run()
+        if self.config.mavlink.signing is not None:
+            loops["signing"] = self._signing_loop()
+        return loops
+
+    def _stale_heads(self, now_ns: int) -> frozenset[str] | None:
+        """Heads without fresh data, or None during the boot grace (see :mod:`.health`)."""
+        latest = {h.name: h.t_capture_ns for h in self.heads}
+        return health.stale_heads(latest, self._started_ns, now_ns, self._max_age_ns)
+
+    async def _heartbeat_loop(self) -> None:
+        period_s = 1.0 / self.config.mavlink.heartbeat_hz
+        while True:
+            state = health.mav_state(self._stale_heads(time.monotonic_ns()))
+            self.link.send(self.codec.heartbeat(state))
+            await asyncio.sleep(period_s)
+
+    def _check_staleness(self) -> None:
+        """Log and announce heads that went stale or recovered since the last check."""
+        stale = self._stale_heads(time.monotonic_ns())
+        if stale is None:
+            return
+        for change in health.transitions(self._stale, stale):
+            name = change.head
+            if change.stale:
+                logger.error("head '%s': data stale; sending unknown for its sectors", name)
+                self.announce(
+                    mav.MAV_SEVERITY_CRITICAL,
+                    f"avoidd: {name} stale, no avoidance",
+                    f"fresh {name}",
+                )
+            else:
+                logger.warning("head '%s': data fresh again", name)
+                self.announce(mav.MAV_SEVERITY_NOTICE, f"avoidd: {name} recovered", f"fresh {name}")
+        self._stale = stale
+
+    async def _signing_loop(self) -> None:
+        while True:
+            await asyncio.sleep(_SIGNING_KEEP_S)
+            self._timestamps.keep(self.codec.signing_timestamp)

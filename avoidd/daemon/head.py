@@ -1,0 +1,225 @@
+"""One stereo head at run time: its capture thread with backoff, compute task and latest scan."""
+
+from __future__ import annotations
+
+import asyncio
+import contextlib
+import logging
+import threading
+import time
+from collections import deque
+from collections.abc import Callable
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Protocol
+
+from avoidd.config import HeadConfig, PerceptionConfig, SourceConfig
+from avoidd.errors import BrokenFrame, SourceError, SourceExhausted
+from avoidd.mavlink import codec as mav
+from avoidd.mavlink.vehicle import Announce
+from avoidd.perception.temporal import SectorFilter
+from avoidd.pipeline import HeadPipeline, HeadResult
+from avoidd.slot import LatestSlot
+from avoidd.sources import FrameSource
+from avoidd.types import FramePose, RectifiedRig, SectorScan, StereoFrame
+from avoidd.vision.calibration import Calibration
+
+logger = logging.getLogger(__name__)
+
+_BACKOFF_MIN_S = 0.5
+_BACKOFF_MAX_S = 10.0
+
+
+class OpenSource(Protocol):
+    """Opens a head's frame source; the signature of :func:`avoidd.sources.open_source`."""
+
+    def __call__(
+        self,
+        config: SourceConfig,
+        rig: RectifiedRig,
+        head: str,
+        paced: bool,
+        input_path: Path | None = None,
+    ) -> FrameSource:
+        """Open the source ``config`` describes (raises ``SourceError`` when it cannot)."""
+
+
+@dataclass
+class HeadStats:
+    """Counters of one head (written by its capture thread and compute task)."""
+
+    captured: int = 0
+    processed: int = 0
+    broken: int = 0
+    source_errors: int = 0
+    restarts: int = 0
+    latency_ms: deque[float] = field(default_factory=lambda: deque(maxlen=256))
+
+
+class Head:
+    """One stereo head at run time: its source thread, slot, pipeline and latest result.
+
+    Args:
+        config: The head's configuration.
+        calibration: Its loaded calibration.
+        max_range_m: Range treated as clear.
+        loop: The daemon's event loop.
+        stop: Set when the daemon shuts down.
+        announce: Thread-safe callback for operator-visible events (severity, text, key).
+        perception: Ground model, band and temporal filter parameters.
+        pose_for: Attitude and height to interpret a frame with.
+        open_source: Opens the head's source (called from the capture thread).
+    """
+
+    def __init__(
+        self,
+        config: HeadConfig,
+        calibration: Calibration,
+        max_range_m: float,
+        loop: asyncio.AbstractEventLoop,
+        stop: threading.Event,
+        announce: Announce,
+        perception: PerceptionConfig,
+        pose_for: Callable[[StereoFrame], FramePose],
+        open_source: OpenSource,
+    ) -> None:
+        self.config = config
+        self.name = config.name
+        self.pipeline = HeadPipeline(config, calibration, max_range_m, perception)
+        self.filter = SectorFilter(perception.temporal)
+        self._pose_for = pose_for
+        self._open_source = open_source
+        self.slot: LatestSlot[StereoFrame] = LatestSlot(loop)
+        self.latest: HeadResult | None = None
+        self.latest_scan: SectorScan | None = None
+        self.stats = HeadStats()
+        self.ended = False
+        self._stop = stop
+        self._announce = announce
+        self._thread = threading.Thread(target=self._capture, name=f"capture-{self.name}")
+
+    @property
+    def t_capture_ns(self) -> int | None:
+        """Capture time of the newest processed frame, or None before the first."""
+        latest = self.latest
+        return None if latest is None else latest.t_capture_ns
+
+    def start(self) -> None:
+        """Start the capture thread."""
+        self._thread.start()
+
+    def join(self, timeout_s: float) -> None:
+        """Wait for the capture thread to finish."""
+        self._thread.join(timeout_s)
+
+    def _backoff_range(self) -> tuple[float, float]:
+        source = self.config.source
+        if source.kind == "v4l2":
+            return source.reopen_min_s, source.reopen_max_s
+        return _BACKOFF_MIN_S, _BACKOFF_MAX_S
+
+    def _open(self) -> FrameSource:
+        return self._open_source(self.config.source, self.pipeline.rig, self.name, paced=True)
+
+    def _capture(self) -> None:
+        """Capture thread: read frames into the slot; reopen a lost source with backoff."""
+        low_s, high_s = self._backoff_range()
+        backoff_s = low_s
+        source: FrameSource | None = None
+        lost = False
+        while not self._stop.is_set():
+            if source is None:
+                try:
+                    source = self._open()
+                except SourceError as exc:
+                    self.stats.source_errors += 1
+                    logger.error("%s; retrying in %.1f s", exc, backoff_s)
+                    if not lost:
+                        self._announce(
+                            mav.MAV_SEVERITY_CRITICAL,
+                            f"avoidd: {self.name} camera lost",
+                            f"camera {self.name}",
+                        )
+                        lost = True
+                    self._stop.wait(backoff_s)
+                    backoff_s = min(backoff_s * 2, high_s)
+                    continue
+                except Exception:
+                    logger.exception("head '%s': source failed to open", self.name)
+                    self.stats.source_errors += 1
+                    self._stop.wait(backoff_s)
+                    backoff_s = min(backoff_s * 2, high_s)
+                    continue
+                if lost:
+                    self.stats.restarts += 1
+                    self._announce(
+                        mav.MAV_SEVERITY_NOTICE,
+                        f"avoidd: {self.name} camera back",
+                        f"camera {self.name}",
+                    )
+                    lost = False
+                logger.info("head '%s': reading %s", self.name, source.description)
+                backoff_s = low_s
+            try:
+                frame = source.read()
+            except BrokenFrame as exc:
+                self.stats.broken += 1
+                logger.warning("%s", exc)
+                continue
+            except SourceExhausted:
+                logger.warning("head '%s': %s ended; no more data", self.name, source.description)
+                self._announce(mav.MAV_SEVERITY_WARNING, f"avoidd: {self.name} source ended")
+                self.ended = True
+                break
+            except Exception as exc:
+                self.stats.source_errors += 1
+                logger.error("head '%s': source lost (%s); reopening", self.name, exc)
+                self._announce(
+                    mav.MAV_SEVERITY_CRITICAL,
+                    f"avoidd: {self.name} camera lost",
+                    f"camera {self.name}",
+                )
+                lost = True
+                with contextlib.suppress(Exception):
+                    source.close()
+                source = None
+                self._stop.wait(backoff_s)
+                backoff_s = min(backoff_s * 2, high_s)
+                continue
+            self.stats.captured += 1
+            self.slot.put(frame)
+        if source is not None:
+            with contextlib.suppress(Exception):
+                source.close()
+
+    async def compute(self) -> None:
+        """Compute task: process the newest frame in a worker thread, keep the latest result."""
+        while True:
+            frame = await self.slot.get()
+            try:
+                pose = self._pose_for(frame)
+                result = await asyncio.to_thread(self.pipeline.process, frame, pose)
+            except BrokenFrame as exc:
+                self.stats.broken += 1
+                logger.warning("%s", exc)
+                continue
+            except Exception:
+                self.stats.broken += 1
+                logger.exception("head '%s': frame %d failed", self.name, frame.seq)
+                continue
+            if self.latest is not None and result.t_capture_ns <= self.latest.t_capture_ns:
+                self.filter.reset()  # the source started over (a looping recording)
+            self.latest_scan = self.filter.update(result.scan)
+            self.latest = result
+            self.stats.processed += 1
+            self.stats.latency_ms.append((time.monotonic_ns() - result.t_capture_ns) / 1e6)
+
+    def fresh_scan(self, now_ns: int, max_age_ns: int) -> SectorScan | None:
+        """The latest filtered scan if its frame is younger than ``max_age_ns``, else None.
+
+        Bins holding a reading older than ``max_age_ns`` (a held obstacle) come back unknown.
+        """
+        latest, scan = self.latest, self.latest_scan
+        if latest is None or scan is None or now_ns - latest.t_capture_ns > max_age_ns:
+            return None
+        return scan.expired(now_ns, max_age_ns)

@@ -1,0 +1,170 @@
+"""The obstacle messages to the autopilot: the merged fresh scan and the paced send loops."""
+
+from __future__ import annotations
+
+import asyncio
+import time
+from collections.abc import Callable, Coroutine, Sequence
+from typing import Any
+
+from avoidd.config import MavlinkConfig
+from avoidd.daemon.head import Head
+from avoidd.mavlink.link import MavLink
+from avoidd.mavlink.messages import (
+    DistanceSensorHead,
+    nearest_points,
+    sectors_to_cm,
+    unknown_cm,
+)
+from avoidd.mavlink.vehicle import Vehicle
+from avoidd.perception.sectors import merge_scans
+from avoidd.types import SectorScan
+
+
+async def every(rate_hz: float, send: Callable[[], None]) -> None:
+    """Call ``send`` at ``rate_hz`` without drift (skipping ahead after a stall), forever.
+
+    Args:
+        rate_hz: Calls per second.
+        send: What to call; it must not block.
+    """
+    period_s = 1.0 / rate_hz
+    next_s = time.monotonic()
+    while True:
+        send()
+        next_s += period_s
+        delay_s = next_s - time.monotonic()
+        if delay_s < -period_s:
+            next_s = time.monotonic()
+            delay_s = 0.0
+        await asyncio.sleep(max(delay_s, 0.0))
+
+
+def current_scan(heads: Sequence[Head], now_ns: int, max_age_ns: int) -> SectorScan | None:
+    """The fresh scans of all heads merged into one, or None if no head is fresh.
+
+    Args:
+        heads: The daemon's heads.
+        now_ns: The current monotonic time.
+        max_age_ns: Age beyond which a head's scan (or a bin's reading) is left out.
+
+    Returns:
+        The merged scan, or None.
+    """
+    fresh = [s for h in heads if (s := h.fresh_scan(now_ns, max_age_ns)) is not None]
+    return merge_scans(fresh) if fresh else None
+
+
+class Outputs:
+    """Sends what the heads see: OBSTACLE_DISTANCE, DISTANCE_SENSOR and OBSTACLE_DISTANCE_3D.
+
+    Args:
+        config: The ``mavlink`` section (rates, ranges, which messages are enabled).
+        max_age_ms: Data older than this is never sent (``pipeline.max_age_ms``).
+        heads: The heads whose scans are sent.
+        link: Where to send (its codec builds the messages).
+        vehicle: The autopilot's clock, to stamp messages with.
+    """
+
+    def __init__(
+        self,
+        config: MavlinkConfig,
+        max_age_ms: int,
+        heads: Sequence[Head],
+        link: MavLink,
+        vehicle: Vehicle,
+    ) -> None:
+        self.config = config
+        self.max_age_ns = max_age_ms * 1_000_000
+        self.heads = heads
+        self.link = link
+        self.vehicle = vehicle
+
+    def current_scan(self, now_ns: int) -> SectorScan | None:
+        """The heads' fresh scans merged (see :func:`current_scan`)."""
+        return current_scan(self.heads, now_ns, self.max_age_ns)
+
+    def loops(self) -> dict[str, Coroutine[Any, Any, None]]:
+        """The send loops the configuration enables, by task name, in start order."""
+        loops: dict[str, Coroutine[Any, Any, None]] = {}
+        if self.config.distance_sensor.enabled:
+            loops["distance"] = self.distance_sensor()
+        if self.config.obstacle_distance_3d.enabled:
+            loops["obstacle-3d"] = self.obstacle_distance_3d()
+        loops["send"] = self.obstacle_distance()
+        return loops
+
+    async def obstacle_distance(self) -> None:
+        """Send OBSTACLE_DISTANCE at its rate: the merged scan, or all unknown when stale."""
+        od = self.config.obstacle_distance
+        codec = self.link.codec
+
+        def send() -> None:
+            now_ns = time.monotonic_ns()
+            scan = self.current_scan(now_ns)
+            if scan is None:
+                distances = unknown_cm()
+                time_usec = self.vehicle.time_usec(now_ns)
+            else:
+                distances = sectors_to_cm(scan, od.min_distance_cm, od.max_distance_cm)
+                time_usec = self.vehicle.time_usec(scan.t_capture_ns)
+            self.link.send(
+                codec.obstacle_distance(
+                    time_usec, distances, od.min_distance_cm, od.max_distance_cm
+                )
+            )
+
+        await every(od.rate_hz, send)
+
+    async def distance_sensor(self) -> None:
+        """Send DISTANCE_SENSOR at its rate, one per fresh head (nothing for a stale one)."""
+        od = self.config.obstacle_distance
+        codec = self.link.codec
+        sensors = {
+            head.name: DistanceSensorHead(head.pipeline.work_rig, head.pipeline.mount, index)
+            for index, head in enumerate(self.heads)
+        }
+
+        def send() -> None:
+            now_ns = time.monotonic_ns()
+            for head in self.heads:
+                scan = head.fresh_scan(now_ns, self.max_age_ns)
+                latest = head.latest
+                if scan is None or latest is None:
+                    continue  # stale: say nothing, the autopilot times the sensor out
+                sensor = sensors[head.name]
+                reading_cm = sensor.reading_cm(scan, od.min_distance_cm, od.max_distance_cm)
+                if reading_cm is None:
+                    continue
+                self.link.send(
+                    sensor.message(
+                        codec,
+                        self.vehicle.time_boot_ms(latest.t_capture_ns),
+                        reading_cm,
+                        od.min_distance_cm,
+                        od.max_distance_cm,
+                        latest.valid_fraction,
+                    )
+                )
+
+        await every(self.config.distance_sensor.rate_hz, send)
+
+    async def obstacle_distance_3d(self) -> None:
+        """Send OBSTACLE_DISTANCE_3D at its rate: the nearest points of the merged scan."""
+        od = self.config.obstacle_distance
+        od3 = self.config.obstacle_distance_3d
+        codec = self.link.codec
+
+        def send() -> None:
+            scan = self.current_scan(time.monotonic_ns())
+            if scan is None:
+                return
+            time_boot_ms = self.vehicle.time_boot_ms(scan.t_capture_ns)
+            for point in nearest_points(scan, od3.max_points):
+                self.link.send(
+                    codec.obstacle_distance_3d(
+                        time_boot_ms, point, od.min_distance_cm / 100, od.max_distance_cm / 100
+                    )
+                )
+
+        await every(od3.rate_hz, send)
