@@ -8,8 +8,8 @@ import pytest
 
 from avoidd.cli import load_all, main
 from avoidd.config import load_config
+from avoidd.config.connection import LinkSpec, parse_connection
 from avoidd.errors import ConfigError
-from avoidd.mavlink.url import LinkSpec, parse_connection
 from tests.helpers import REPO
 
 BASE = """\
