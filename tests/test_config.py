@@ -2,15 +2,49 @@ from __future__ import annotations
 
 import subprocess
 import sys
+import typing
 from pathlib import Path
+from typing import Any
 
 import pytest
+from pydantic import BaseModel
 
 from avoidd.cli import main
-from avoidd.config import load_config
+from avoidd.config import (
+    AppConfig,
+    AttitudeConfig,
+    BandConfig,
+    CensusConfig,
+    DistanceSensorConfig,
+    FilesSourceConfig,
+    GroundConfig,
+    HeadConfig,
+    HistogramConfig,
+    MavlinkConfig,
+    MountConfig,
+    ObstacleDistance3dConfig,
+    ObstacleDistanceConfig,
+    ObstaclesConfig,
+    PerceptionConfig,
+    PipelineConfig,
+    PostprocessConfig,
+    PreprocessConfig,
+    SadConfig,
+    SectorsConfig,
+    SegmentConfig,
+    SgbmConfig,
+    SigningConfig,
+    StreamsConfig,
+    SyntheticObstacleConfig,
+    SyntheticSourceConfig,
+    TemporalConfig,
+    TextureConfig,
+    V4l2SourceConfig,
+    load_config,
+)
+from avoidd.config.connection import LinkSpec, parse_connection
 from avoidd.errors import ConfigError
 from avoidd.loading import load_all
-from avoidd.mavlink.url import LinkSpec, parse_connection
 from tests.helpers import REPO
 
 BASE = """\
@@ -272,3 +306,211 @@ def test_row_band_is_refused_with_a_pointer(tmp_path: Path) -> None:
     with pytest.raises(ConfigError) as caught:
         load_all(tmp_path / "old.yaml")
     assert "row_band is gone" in "\n".join(caught.value.lines)
+
+
+# Every section of the file, written out, each with a marker line ``#@ PATH`` as its first line.
+# A test swaps one marker for a misspelt key; the other markers stay comments, so lines keep.
+EVERY_SECTION = """\
+#@ (top level)
+version: 1
+heads:
+  - #@ heads[0]
+    name: synth
+    calibration: calib.yaml
+    mount:
+      #@ heads[0].mount
+      yaw_deg: 0
+    source:
+      #@ heads[0].source
+      kind: synthetic
+      obstacles:
+        - #@ heads[0].source.obstacles[0]
+          shape: pole
+          forward_m: 5
+    matcher:
+      #@ heads[0].matcher
+      kind: sgbm
+    preprocess:
+      #@ heads[0].preprocess
+      median_px: 3
+      texture:
+        #@ heads[0].preprocess.texture
+        method: mean
+    postprocess:
+      #@ heads[0].postprocess
+      median_size: 5
+    sectors:
+      #@ heads[0].sectors
+      min_pixels: 20
+    histogram:
+      #@ heads[0].histogram
+      bins: 40
+  - name: files
+    calibration: calib.yaml
+    source:
+      #@ heads[1].source
+      kind: files
+      path: frames
+    matcher:
+      #@ heads[1].matcher
+      kind: sad
+  - name: cameras
+    calibration: calib.yaml
+    source:
+      #@ heads[2].source
+      kind: v4l2
+      devices: [/dev/video0, /dev/video1]
+      width: 320
+      height: 240
+    matcher:
+      #@ heads[2].matcher
+      kind: census
+  - name: segments
+    calibration: calib.yaml
+    source: {kind: synthetic}
+    matcher:
+      #@ heads[3].matcher
+      kind: segment
+mavlink:
+  #@ mavlink
+  connection: udpout:127.0.0.1:14550
+  obstacle_distance:
+    #@ mavlink.obstacle_distance
+    rate_hz: 15
+  distance_sensor:
+    #@ mavlink.distance_sensor
+    enabled: false
+  obstacle_distance_3d:
+    #@ mavlink.obstacle_distance_3d
+    enabled: false
+  streams:
+    #@ mavlink.streams
+    attitude_hz: 50
+  signing:
+    #@ mavlink.signing
+    key_credential: avoidd-signing
+pipeline:
+  #@ pipeline
+  max_age_ms: 300
+perception:
+  #@ perception
+  ground:
+    #@ perception.ground
+    height_m: 1.5
+  band:
+    #@ perception.band
+    above_m: 2.0
+  attitude:
+    #@ perception.attitude
+    roll_deg: 0
+  temporal:
+    #@ perception.temporal
+    confirm_frames: 2
+  obstacles:
+    #@ perception.obstacles
+    min_points: 30
+"""
+
+SECTION_MODELS: dict[str, type[BaseModel]] = {
+    "(top level)": AppConfig,
+    "heads[0]": HeadConfig,
+    "heads[0].mount": MountConfig,
+    "heads[0].source": SyntheticSourceConfig,
+    "heads[0].source.obstacles[0]": SyntheticObstacleConfig,
+    "heads[0].matcher": SgbmConfig,
+    "heads[0].preprocess": PreprocessConfig,
+    "heads[0].preprocess.texture": TextureConfig,
+    "heads[0].postprocess": PostprocessConfig,
+    "heads[0].sectors": SectorsConfig,
+    "heads[0].histogram": HistogramConfig,
+    "heads[1].source": FilesSourceConfig,
+    "heads[1].matcher": SadConfig,
+    "heads[2].source": V4l2SourceConfig,
+    "heads[2].matcher": CensusConfig,
+    "heads[3].matcher": SegmentConfig,
+    "mavlink": MavlinkConfig,
+    "mavlink.obstacle_distance": ObstacleDistanceConfig,
+    "mavlink.distance_sensor": DistanceSensorConfig,
+    "mavlink.obstacle_distance_3d": ObstacleDistance3dConfig,
+    "mavlink.streams": StreamsConfig,
+    "mavlink.signing": SigningConfig,
+    "pipeline": PipelineConfig,
+    "perception": PerceptionConfig,
+    "perception.ground": GroundConfig,
+    "perception.band": BandConfig,
+    "perception.attitude": AttitudeConfig,
+    "perception.temporal": TemporalConfig,
+    "perception.obstacles": ObstaclesConfig,
+}
+
+
+def section_models(model: type[BaseModel]) -> set[type[BaseModel]]:
+    """The model and every model nested in its fields (through lists, unions, Annotated)."""
+    found: set[type[BaseModel]] = set()
+    pending: list[Any] = [model]
+    while pending:
+        item = pending.pop()
+        if isinstance(item, type) and issubclass(item, BaseModel):
+            if item not in found:
+                found.add(item)
+                pending.extend(info.annotation for info in item.model_fields.values())
+        else:
+            pending.extend(typing.get_args(item))
+    return found
+
+
+def misspell(name: str) -> str:
+    """The name with its last letter changed."""
+    return name[:-1] + ("q" if name[-1] != "q" else "x")
+
+
+def every_section_file(tmp_path: Path, typo_at: str | None = None) -> tuple[Path, int]:
+    """The file with every section, a misspelt key at ``typo_at``; returns it and that line."""
+    (tmp_path / "frames").mkdir(exist_ok=True)
+    lines = EVERY_SECTION.splitlines()
+    typo_line = 0
+    for number, line in enumerate(lines, start=1):
+        indent, marker, where = line.partition("#@ ")
+        if marker and where == typo_at:
+            field = next(iter(SECTION_MODELS[where].model_fields))
+            lines[number - 1] = f"{indent}{misspell(field)}: 1"
+            typo_line = number
+    return write(tmp_path, "\n".join(lines) + "\n"), typo_line
+
+
+def test_every_section_is_in_the_unknown_key_file(tmp_path: Path) -> None:
+    assert set(SECTION_MODELS.values()) == section_models(AppConfig)
+    path, _ = every_section_file(tmp_path)
+    config = load_config(path)
+    assert [type(head.source) for head in config.heads] == [
+        SyntheticSourceConfig,
+        FilesSourceConfig,
+        V4l2SourceConfig,
+        SyntheticSourceConfig,
+    ]
+    assert [head.matcher.kind for head in config.heads] == ["sgbm", "sad", "census", "segment"]
+
+
+@pytest.mark.parametrize("where", list(SECTION_MODELS))
+def test_unknown_key_in_every_section_names_line_path_and_spelling(
+    tmp_path: Path, where: str
+) -> None:
+    path, line = every_section_file(tmp_path, where)
+    field = next(iter(SECTION_MODELS[where].model_fields))
+    key = misspell(field)
+    dotted = key if where == "(top level)" else f"{where}.{key}"
+    with pytest.raises(ConfigError) as caught:
+        load_config(path)
+    assert caught.value.lines == [f"{path}:{line}: {dotted}: unknown key; did you mean '{field}'?"]
+
+
+def test_allow_unsigned_takes_only_mavlink_message_names(tmp_path: Path) -> None:
+    text = BASE + (
+        "  signing:\n"
+        "    key_credential: avoidd-signing\n"
+        "    allow_unsigned: [RADIO_STATUS, ATTITUDE, RADIO_STATUSS]\n"
+    )
+    assert problems(write(tmp_path, text)) == [
+        f"{tmp_path}/avoidd.yaml:14: mavlink.signing.allow_unsigned[2]: 'RADIO_STATUSS' is not "
+        "a MAVLink message name (e.g. RADIO_STATUS) (got 'RADIO_STATUSS')"
+    ]

@@ -5,10 +5,10 @@ from __future__ import annotations
 
 import asyncio
 
+from avoidd.config.connection import parse_connection
 from avoidd.daemon import Announcer
 from avoidd.mavlink import codec as mav
 from avoidd.mavlink.link import MavLink
-from avoidd.mavlink.url import parse_connection
 from tests.helpers import open_udp_peer, wait_for
 
 

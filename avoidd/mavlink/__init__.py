@@ -1,1 +1,1 @@
-"""MAVLink side of avoidd: connection strings, codec, messages and transports."""
+"""MAVLink side of avoidd: codec, messages and transports (connection strings: avoidd.config)."""

@@ -15,9 +15,9 @@ from collections import Counter, deque
 from collections.abc import Callable
 
 from avoidd.aio import cancel_task
+from avoidd.config.connection import LinkSpec
 from avoidd.mavlink.codec import Codec, Message
 from avoidd.mavlink.transport import Transport, create_transport
-from avoidd.mavlink.url import LinkSpec
 
 logger = logging.getLogger(__name__)
 

@@ -25,11 +25,11 @@ from pathlib import Path
 from pymavlink import mavutil
 
 from avoidd.aio import cancel_task
+from avoidd.config.connection import parse_connection
 from avoidd.errors import LinkError
 from avoidd.mavlink import codec as mav
 from avoidd.mavlink.signing import wall_timestamp
 from avoidd.mavlink.transport import ReceiveCallback, Transport, create_transport
-from avoidd.mavlink.url import parse_connection
 
 logger = logging.getLogger(__name__)
 

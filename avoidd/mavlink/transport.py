@@ -12,8 +12,8 @@ from collections.abc import Callable
 from typing import Any, Protocol
 
 from avoidd.aio import cancel_task
+from avoidd.config.connection import STANDARD_BAUDS, LinkSpec
 from avoidd.errors import LinkError
-from avoidd.mavlink.url import STANDARD_BAUDS, LinkSpec
 
 logger = logging.getLogger(__name__)
 

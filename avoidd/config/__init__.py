@@ -1,0 +1,86 @@
+"""The daemon's YAML configuration as frozen, typed models (version 1), one module per section.
+
+``avoidd.config`` re-exports every public name, so ``from avoidd.config import HeadConfig`` works
+whichever module a model lives in.
+"""
+
+from avoidd.config.app import AppConfig, PipelineConfig, load_config
+from avoidd.config.base import ConfigPath, Strict
+from avoidd.config.connection import LinkSpec, parse_connection
+from avoidd.config.head import HeadConfig, MountConfig
+from avoidd.config.mavlink import (
+    DistanceSensorConfig,
+    MavlinkConfig,
+    ObstacleDistance3dConfig,
+    ObstacleDistanceConfig,
+    SigningConfig,
+    StreamsConfig,
+)
+from avoidd.config.perception import (
+    AttitudeConfig,
+    BandConfig,
+    GroundConfig,
+    ObstaclesConfig,
+    PerceptionConfig,
+    TemporalConfig,
+)
+from avoidd.config.sources import (
+    FilesSourceConfig,
+    SourceConfig,
+    SyntheticObstacleConfig,
+    SyntheticSourceConfig,
+    V4l2SourceConfig,
+)
+from avoidd.config.stereo import (
+    CensusConfig,
+    DisparityRange,
+    HistogramConfig,
+    MatcherConfig,
+    PostprocessConfig,
+    PreprocessConfig,
+    SadConfig,
+    SectorsConfig,
+    SegmentConfig,
+    SgbmConfig,
+    TextureConfig,
+)
+
+__all__ = [
+    "AppConfig",
+    "AttitudeConfig",
+    "BandConfig",
+    "CensusConfig",
+    "ConfigPath",
+    "DisparityRange",
+    "DistanceSensorConfig",
+    "FilesSourceConfig",
+    "GroundConfig",
+    "HeadConfig",
+    "HistogramConfig",
+    "LinkSpec",
+    "MatcherConfig",
+    "MavlinkConfig",
+    "MountConfig",
+    "ObstacleDistance3dConfig",
+    "ObstacleDistanceConfig",
+    "ObstaclesConfig",
+    "PerceptionConfig",
+    "PipelineConfig",
+    "PostprocessConfig",
+    "PreprocessConfig",
+    "SadConfig",
+    "SectorsConfig",
+    "SegmentConfig",
+    "SgbmConfig",
+    "SigningConfig",
+    "SourceConfig",
+    "StreamsConfig",
+    "Strict",
+    "SyntheticObstacleConfig",
+    "SyntheticSourceConfig",
+    "TemporalConfig",
+    "TextureConfig",
+    "V4l2SourceConfig",
+    "load_config",
+    "parse_connection",
+]

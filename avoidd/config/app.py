@@ -1,0 +1,62 @@
+"""The root of the configuration file (``AppConfig``), its pipeline section and ``load_config``."""
+
+from __future__ import annotations
+
+from pathlib import Path
+from typing import Literal
+
+from pydantic import Field, field_validator
+
+from avoidd.config.base import Strict
+from avoidd.config.head import HeadConfig
+from avoidd.config.mavlink import MavlinkConfig
+from avoidd.config.perception import PerceptionConfig
+from avoidd.yamlfile import load_yaml, validate_document
+
+
+class PipelineConfig(Strict):
+    """Daemon-wide timing.
+
+    Attributes:
+        max_age_ms: A scan older than this (from capture to send) is never sent; every bin goes
+            out as unknown instead.
+        log_interval_s: Period of the one-line status log.
+    """
+
+    max_age_ms: int = Field(300, ge=20, le=5000)
+    log_interval_s: float = Field(5.0, gt=0.0)
+
+
+class AppConfig(Strict):
+    """The whole configuration file."""
+
+    version: Literal[1]
+    heads: list[HeadConfig] = Field(min_length=1, max_length=8)
+    mavlink: MavlinkConfig
+    pipeline: PipelineConfig = PipelineConfig()
+    perception: PerceptionConfig = PerceptionConfig()
+
+    @field_validator("heads")
+    @classmethod
+    def _unique_names(cls, value: list[HeadConfig]) -> list[HeadConfig]:
+        names = [head.name for head in value]
+        duplicates = sorted({name for name in names if names.count(name) > 1})
+        if duplicates:
+            raise ValueError(f"head names must be unique; rename {', '.join(duplicates)}")
+        return value
+
+
+def load_config(path: Path) -> AppConfig:
+    """Load and validate a configuration file.
+
+    Args:
+        path: The YAML file.
+
+    Returns:
+        The validated configuration; relative paths in it are resolved against its folder.
+
+    Raises:
+        ConfigError: One line per problem, naming file, line, key path, value and remedy.
+    """
+    doc = load_yaml(path)
+    return validate_document(doc, AppConfig, {"base_dir": path.parent.resolve()})

@@ -1,0 +1,52 @@
+"""A stereo head's section: its name, calibration file, mount and per-head pipeline settings."""
+
+from __future__ import annotations
+
+import re
+from typing import Annotated
+
+from pydantic import AfterValidator, Field, field_validator
+
+from avoidd.config.base import ConfigPath, Strict, _existing_file
+from avoidd.config.sources import SourceConfig
+from avoidd.config.stereo import (
+    HistogramConfig,
+    MatcherConfig,
+    PostprocessConfig,
+    PreprocessConfig,
+    SectorsConfig,
+    SgbmConfig,
+)
+
+
+class MountConfig(Strict):
+    """Pose of a stereo head in the body FRD frame (see ``avoidd.types.Mount``)."""
+
+    yaw_deg: float = Field(0.0, ge=-180.0, le=360.0)
+    pitch_deg: float = Field(0.0, ge=-90.0, le=90.0)
+    roll_deg: float = Field(0.0, ge=-180.0, le=180.0)
+    position_m: tuple[float, float, float] = (0.0, 0.0, 0.0)
+
+
+_HEAD_NAME = re.compile(r"^[a-z][a-z0-9_-]{0,31}$")
+
+
+class HeadConfig(Strict):
+    """One stereo head: its calibration file, its mount, its source and its matcher."""
+
+    name: str
+    calibration: Annotated[ConfigPath, AfterValidator(_existing_file)]
+    mount: MountConfig = MountConfig()
+    source: SourceConfig
+    matcher: MatcherConfig = SgbmConfig()
+    preprocess: PreprocessConfig = PreprocessConfig()
+    postprocess: PostprocessConfig = PostprocessConfig()
+    sectors: SectorsConfig = SectorsConfig()
+    histogram: HistogramConfig = HistogramConfig()
+
+    @field_validator("name")
+    @classmethod
+    def _name(cls, value: str) -> str:
+        if not _HEAD_NAME.match(value):
+            raise ValueError("use lower case letters, digits, '-' or '_', e.g. 'front'")
+        return value

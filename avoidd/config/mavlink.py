@@ -1,0 +1,140 @@
+"""The MAVLink section: connection, identity, outputs, requested streams and signing."""
+
+from __future__ import annotations
+
+from typing import Annotated, Literal
+
+from pydantic import AfterValidator, Field, field_validator, model_validator
+
+from avoidd.config.base import ConfigPath, Strict
+from avoidd.config.connection import LinkSpec, parse_connection
+
+
+class ObstacleDistanceConfig(Strict):
+    """OBSTACLE_DISTANCE output: rate and the sensor's range in centimetres."""
+
+    rate_hz: float = Field(15.0, ge=1.0, le=50.0)
+    min_distance_cm: int = Field(20, ge=1, le=65533)
+    max_distance_cm: int = Field(2000, ge=2, le=65533)
+
+    @model_validator(mode="after")
+    def _range(self) -> ObstacleDistanceConfig:
+        if self.max_distance_cm <= self.min_distance_cm:
+            raise ValueError("max_distance_cm must be greater than min_distance_cm")
+        return self
+
+
+class StreamsConfig(Strict):
+    """Rates at which avoidd asks the autopilot for vehicle state (0 = do not ask).
+
+    Each is requested with MAV_CMD_SET_MESSAGE_INTERVAL, repeated until acknowledged, and again
+    whenever the link comes back (an autopilot forgets requested intervals when it reboots).
+    """
+
+    attitude_hz: float = Field(50.0, ge=0.0, le=1000.0)
+    local_position_hz: float = Field(10.0, ge=0.0, le=1000.0)
+    distance_sensor_hz: float = Field(10.0, ge=0.0, le=1000.0)
+    system_time_hz: float = Field(1.0, ge=0.0, le=1000.0)
+
+
+def _known_message(value: str) -> str:
+    # Imported here, as before: loading the config alone need not load the generated dialect.
+    # The same test as avoidd.mavlink.codec.message_id, which config (the bottom layer) must
+    # not import.
+    from pymavlink.dialects.v20 import ardupilotmega
+
+    if getattr(ardupilotmega, f"MAVLINK_MSG_ID_{value}", None) is None:
+        raise ValueError(f"'{value}' is not a MAVLink message name (e.g. RADIO_STATUS)")
+    return value
+
+
+class SigningConfig(Strict):
+    """MAVLink 2 signing. Give the key as ``key_file`` or as a systemd credential name.
+
+    Attributes:
+        key_file: File holding the 32-byte key (raw, or 64 hex digits).
+        key_credential: Name of a credential in ``$CREDENTIALS_DIRECTORY`` (systemd
+            ``LoadCredential=NAME:/path``); preferred in production.
+        allow_unsigned: Messages accepted without a valid signature.
+        timestamp_file: Where the signing timestamp is kept across restarts (needed on boards
+            without a real-time clock); its folder must exist.
+        link_id: Link id carried in our signatures.
+    """
+
+    key_file: ConfigPath | None = None
+    key_credential: str | None = Field(None, pattern=r"^[A-Za-z0-9_.-]+$")
+    # pydantic copies a mutable default per instance; ruff cannot see that Strict is a model.
+    allow_unsigned: list[Annotated[str, AfterValidator(_known_message)]] = ["RADIO_STATUS"]  # noqa: RUF012
+    timestamp_file: ConfigPath | None = None
+    link_id: int = Field(0, ge=0, le=255)
+
+    @model_validator(mode="after")
+    def _one_key(self) -> SigningConfig:
+        if (self.key_file is None) == (self.key_credential is None):
+            raise ValueError("give exactly one of key_file and key_credential")
+        return self
+
+
+class DistanceSensorConfig(Strict):
+    """DISTANCE_SENSOR per head: its nearest obstacle, oriented by its mount.
+
+    A head's mount must point along one of the orientations DISTANCE_SENSOR can name: yaw a
+    multiple of 45 degrees with pitch 0, or straight up or down.
+    """
+
+    enabled: bool = False
+    rate_hz: float = Field(10.0, ge=1.0, le=50.0)
+
+
+class ObstacleDistance3dConfig(Strict):
+    """OBSTACLE_DISTANCE_3D: the nearest ``max_points`` obstacle points (BODY_FRD, metres)."""
+
+    enabled: bool = False
+    rate_hz: float = Field(10.0, ge=1.0, le=50.0)
+    max_points: int = Field(16, ge=1, le=72)
+
+
+class MavlinkConfig(Strict):
+    """The MAVLink link and avoidd's identity on it.
+
+    Attributes:
+        system_id: The vehicle's system id, or "auto" to learn it from the first autopilot
+            heartbeat (avoidd uses 1 until then). Messages of other systems are ignored.
+        autopilot_component_id: Component id of the autopilot (1).
+        link_timeout_s: The link is down when no autopilot heartbeat came for this long.
+    """
+
+    connection: str
+    system_id: int | Literal["auto"] = "auto"
+    component_id: int = Field(196, ge=1, le=255)
+    autopilot_component_id: int = Field(1, ge=1, le=255)
+    heartbeat_hz: float = Field(1.0, gt=0.0, le=10.0)
+    link_timeout_s: float = Field(3.0, ge=0.5, le=60.0)
+    obstacle_distance: ObstacleDistanceConfig = ObstacleDistanceConfig()
+    distance_sensor: DistanceSensorConfig = DistanceSensorConfig()
+    obstacle_distance_3d: ObstacleDistance3dConfig = ObstacleDistance3dConfig()
+    streams: StreamsConfig = StreamsConfig()
+    signing: SigningConfig | None = None
+
+    @field_validator("system_id")
+    @classmethod
+    def _system_id(cls, value: int | str) -> int | str:
+        if isinstance(value, int) and not 1 <= value <= 255:
+            raise ValueError("a system id is 1 to 255, or auto")
+        return value
+
+    @field_validator("connection")
+    @classmethod
+    def _connection(cls, value: str) -> str:
+        parse_connection(value)
+        return value
+
+    @property
+    def link(self) -> LinkSpec:
+        """The parsed connection string."""
+        return parse_connection(self.connection)
+
+    @property
+    def fixed_system_id(self) -> int | None:
+        """The configured system id, or None when it is learned."""
+        return None if self.system_id == "auto" else int(self.system_id)

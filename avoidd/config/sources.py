@@ -1,0 +1,104 @@
+"""Frame source sections of a head: synthetic scene, recorded files, V4L2 cameras."""
+
+from __future__ import annotations
+
+from typing import Annotated, Literal
+
+from pydantic import AfterValidator, Field, field_validator
+
+from avoidd.config.base import ConfigPath, Strict, _existing_path
+
+
+class SyntheticObstacleConfig(Strict):
+    """An obstacle of the synthetic scene, standing on the ground.
+
+    ``forward_m``/``right_m`` locate the centre of its footprint relative to the camera. A box is
+    ``width_m`` across (right) and ``depth_m`` deep (forward); a pole is a vertical cylinder of
+    diameter ``width_m``.
+    """
+
+    shape: Literal["box", "pole"]
+    forward_m: float = Field(gt=0.0, le=200.0)
+    right_m: float = Field(0.0, ge=-200.0, le=200.0)
+    width_m: float = Field(1.0, gt=0.0, le=100.0)
+    depth_m: float = Field(1.0, gt=0.0, le=100.0)
+    height_m: float = Field(3.0, gt=0.0, le=100.0)
+
+
+def _default_obstacles() -> list[SyntheticObstacleConfig]:
+    return [
+        # Its nearest point, the front-left corner (5.0 m, 1.82 m), is at 20.0 deg: bin 4.
+        SyntheticObstacleConfig(
+            shape="box", forward_m=5.5, right_m=2.42, width_m=1.2, depth_m=1.0, height_m=3.0
+        ),
+        SyntheticObstacleConfig(shape="pole", forward_m=9.0, right_m=-3.5, width_m=0.3, height_m=5),
+        SyntheticObstacleConfig(
+            shape="box", forward_m=14.0, right_m=-0.5, width_m=3.0, depth_m=2.0, height_m=4.0
+        ),
+    ]
+
+
+class SyntheticSourceConfig(Strict):
+    """A rendered scene: textured ground, boxes and poles, a far tree line; exact depth known.
+
+    ``camera_pitch_deg`` is the head's mount pitch (the head's ``mount.pitch_deg`` must say the
+    same); ``vehicle_roll_deg`` and ``vehicle_pitch_deg`` tilt the whole rig and travel with
+    each frame as its recorded attitude, as does ``camera_height_m`` as its height.
+    """
+
+    kind: Literal["synthetic"]
+    fps: float = Field(15.0, gt=0.0, le=240.0)
+    seed: int = Field(1, ge=0)
+    camera_height_m: float = Field(1.5, gt=0.05, le=100.0)
+    camera_pitch_deg: float = Field(0.0, ge=-45.0, le=45.0)
+    vehicle_roll_deg: float = Field(0.0, ge=-45.0, le=45.0)
+    vehicle_pitch_deg: float = Field(0.0, ge=-45.0, le=45.0)
+    noise_std: float = Field(1.5, ge=0.0, le=20.0)
+    approach_speed_mps: float = Field(0.0, ge=0.0, le=30.0)
+    min_forward_m: float = Field(1.0, gt=0.0)
+    backdrop_m: float | None = Field(45.0, gt=1.0)
+    obstacles: list[SyntheticObstacleConfig] = Field(default_factory=_default_obstacles)
+
+
+class FilesSourceConfig(Strict):
+    """Recorded frames: a folder with ``left/`` and ``right/`` images, or a side-by-side video."""
+
+    kind: Literal["files"]
+    path: Annotated[ConfigPath, AfterValidator(_existing_path)]
+    fps: float | None = Field(None, gt=0.0, le=240.0)
+    loop: bool = False
+
+
+class V4l2SourceConfig(Strict):
+    """Live cameras through V4L2: two devices (left, right) or one side-by-side device."""
+
+    kind: Literal["v4l2"]
+    devices: list[str] = Field(min_length=1, max_length=2)
+    width: int = Field(gt=0, le=8192)
+    height: int = Field(gt=0, le=8192)
+    fps: float = Field(30.0, gt=0.0, le=480.0)
+    fourcc: str | None = "MJPG"
+    reopen_min_s: float = Field(0.5, gt=0.0)
+    reopen_max_s: float = Field(10.0, gt=0.0)
+
+    @field_validator("fourcc")
+    @classmethod
+    def _fourcc(cls, value: str | None) -> str | None:
+        if value is not None and len(value) != 4:
+            raise ValueError("a FOURCC has exactly 4 characters, e.g. MJPG or YUYV")
+        return value
+
+    @field_validator("devices")
+    @classmethod
+    def _devices(cls, value: list[str]) -> list[str]:
+        for device in value:
+            if not (device.startswith("/dev/") or device.isdigit()):
+                raise ValueError(
+                    f"'{device}' is not a device; use /dev/videoN or /dev/v4l/by-id/..."
+                )
+        return value
+
+
+SourceConfig = Annotated[
+    SyntheticSourceConfig | FilesSourceConfig | V4l2SourceConfig, Field(discriminator="kind")
+]

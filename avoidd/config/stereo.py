@@ -1,0 +1,276 @@
+"""Stereo sections of a head: the matchers, pre- and post-processing, sectors and histogram."""
+
+from __future__ import annotations
+
+from typing import Annotated, Literal
+
+from pydantic import (
+    AfterValidator,
+    Discriminator,
+    Field,
+    Tag,
+    field_validator,
+    model_validator,
+)
+
+from avoidd.config.base import Strict, _multiple_of_16, _odd
+
+DisparityRange = Annotated[int, Field(ge=16, le=512), AfterValidator(_multiple_of_16)]
+"""Width of a disparity search range: a multiple of 16 pixels."""
+
+
+class SgbmConfig(Strict):
+    """OpenCV semi-global matching; ``p1``/``p2`` default to 8 and 64 times block_size squared.
+
+    ``pad_left`` matches the left border band (the first ``num_disparities`` columns, which
+    OpenCV leaves unmatched) by padding both views with replicated columns; estimates whose match
+    would fall in the padding are dropped. The band's disparities are less reliable (a near
+    object there has no match in the right image), so obstacle detection never uses them; it
+    still pays to pad, because SGBM's paths then reach the pixels right of the band with context
+    (without it the rendered truth suite's p95 range error rose from 5.0 to 6.4%).
+    The defaults (pad, uniqueness 5, P2 64 bs^2) were measured over Middlebury 2014 Q, 2003
+    and 2001 together (README, "Stereo quality").
+    """
+
+    kind: Literal["sgbm"] = "sgbm"
+    min_disparity: int = Field(0, ge=-128, le=256)
+    num_disparities: DisparityRange = 64
+    block_size: Annotated[int, Field(ge=1, le=15), AfterValidator(_odd)] = 5
+    p1: int | None = Field(None, gt=0)
+    p2: int | None = Field(None, gt=0)
+    uniqueness_ratio: int = Field(5, ge=0, le=100)
+    speckle_window_size: int = Field(100, ge=0)
+    speckle_range: int = Field(2, ge=0)
+    disp12_max_diff: int = Field(1, ge=-1)
+    pre_filter_cap: int = Field(63, ge=1, le=255)
+    mode: Literal["sgbm", "hh", "sgbm_3way", "hh4"] = "sgbm_3way"
+    pad_left: bool = True
+
+    @model_validator(mode="after")
+    def _p2_above_p1(self) -> SgbmConfig:
+        if self.p1 is not None and self.p2 is not None and self.p2 <= self.p1:
+            raise ValueError("p2 must be greater than p1 (p2 penalises large disparity jumps)")
+        return self
+
+
+class SadConfig(Strict):
+    """SAD block matching (OpenCV StereoBM): the paper's first matcher.
+
+    Attributes:
+        block_size: Odd window side (5 to 51).
+        texture_threshold: Minimum texture (sum of |x-derivative| over the window) to match.
+        uniqueness_ratio: Percent by which the best cost must beat the second best.
+        pre_filter: ``xsobel`` (OpenCV's default) or ``normalized_response``.
+        pad_left: As for SGBM.
+    """
+
+    kind: Literal["sad"]
+    num_disparities: DisparityRange = 64
+    block_size: Annotated[int, Field(ge=5, le=51), AfterValidator(_odd)] = 11
+    texture_threshold: int = Field(10, ge=0)
+    uniqueness_ratio: int = Field(15, ge=0, le=100)
+    speckle_window_size: int = Field(100, ge=0)
+    speckle_range: int = Field(2, ge=0)
+    disp12_max_diff: int = Field(1, ge=-1)
+    pre_filter: Literal["xsobel", "normalized_response"] = "xsobel"
+    pad_left: bool = False
+
+
+class CensusConfig(Strict):
+    """Census transform + sum of Hamming distances (the paper's SHD matcher).
+
+    Attributes:
+        pattern: ``sparse5x5`` (8 samples on a 5x5 ring) or ``full5x5`` (24 bits).
+        aggregation_px: Side of the window the Hamming distances are summed over (11 in the
+            paper).
+        max_mean_distance: Drop a match whose mean Hamming distance per pixel exceeds this share
+            of the code's bits.
+        texture_window_px: Window of the texture test.
+        min_texture_std: Minimum grey-level standard deviation in that window; flatter pixels
+            are not matched (their census codes carry no information).
+        lr_max_diff_px: Left-right check: the right view's match must point back within this.
+        speckle_window_size: Islands of similar disparity smaller than this are dropped (0: off).
+    """
+
+    kind: Literal["census"]
+    num_disparities: Annotated[int, Field(ge=16, le=256), AfterValidator(_multiple_of_16)] = 64
+    pattern: Literal["sparse5x5", "full5x5"] = "sparse5x5"
+    aggregation_px: Annotated[int, Field(ge=3, le=31), AfterValidator(_odd)] = 11
+    max_mean_distance: float = Field(0.35, gt=0.0, le=1.0)
+    texture_window_px: Annotated[int, Field(ge=3, le=31), AfterValidator(_odd)] = 7
+    min_texture_std: float = Field(1.0, ge=0.0)
+    lr_max_diff_px: int = Field(1, ge=0)
+    speckle_window_size: int = Field(100, ge=0)
+
+
+class SegmentConfig(Strict):
+    """The paper's segmentation-based hybrid matcher.
+
+    Lightness (Lab L) is clustered by K-means on its histogram; each cluster is cleaned by a
+    morphological opening and split into connected regions; SAD block matching is kept only on
+    region boundaries; each region's interior is filled from its boundary disparities (a plane
+    fitted to them). Interior pixels are filled, not measured: obstacles never use them.
+
+    Attributes:
+        clusters: K of the K-means on lightness.
+        open_px: Side of the opening that removes thin fragments of a cluster (odd; 1 = off).
+        min_region_px: Regions smaller than this are not filled; their pixels keep the SAD value.
+        boundary_px: Width of the boundary band on each side of a region edge.
+        block_size: SAD window side (odd).
+        texture_threshold: As for ``sad``.
+        uniqueness_ratio: As for ``sad``.
+        min_boundary_px: Boundary measurements a region needs before its interior is filled.
+        max_residual_px: A region is filled only if its boundary disparities fit a plane this
+            well (median absolute residual); otherwise it spans a depth edge and stays empty.
+        pad_left: As for SGBM.
+    """
+
+    kind: Literal["segment"]
+    num_disparities: DisparityRange = 64
+    clusters: int = Field(8, ge=2, le=16)
+    open_px: Annotated[int, Field(ge=1, le=15), AfterValidator(_odd)] = 3
+    min_region_px: int = Field(64, ge=1)
+    boundary_px: int = Field(2, ge=1, le=8)
+    block_size: Annotated[int, Field(ge=5, le=51), AfterValidator(_odd)] = 9
+    texture_threshold: int = Field(10, ge=0)
+    uniqueness_ratio: int = Field(15, ge=0, le=100)
+    min_boundary_px: int = Field(12, ge=3)
+    max_residual_px: float = Field(1.0, gt=0.0)
+    pad_left: bool = True
+
+
+def _matcher_kind(value: object) -> str:
+    if isinstance(value, dict):
+        return str(value.get("kind", "sgbm"))
+    return str(getattr(value, "kind", "sgbm"))
+
+
+MatcherConfig = Annotated[
+    Annotated[SgbmConfig, Tag("sgbm")]
+    | Annotated[SadConfig, Tag("sad")]
+    | Annotated[CensusConfig, Tag("census")]
+    | Annotated[SegmentConfig, Tag("segment")],
+    Discriminator(_matcher_kind),
+]
+"""The ``matcher`` section of a head: one of the matchers, chosen by ``kind``."""
+
+
+class SectorsConfig(Strict):
+    """How a head's obstacle points become the 72 distance bins.
+
+    Attributes:
+        min_pixels: Points a bin's nearest cluster needs before it counts as an obstacle, so that
+            a few speckles cannot create one.
+        cluster_window_px: Width of that cluster in disparity pixels (about the matcher's noise
+            band; see ``avoidd.perception.sectors.nearest_cluster``).
+        min_valid_fraction: Below this share of measured pixels a bin without an obstacle is
+            unknown rather than clear.
+        min_size_m: A cluster must also cover a square of this side at its own distance (so
+            near clusters need many pixels, and pixels smeared off an edge cannot pass for an
+            object). The default is the smallest obstacle avoidd must see: a 5 cm pole.
+    """
+
+    min_pixels: int = Field(20, ge=1)
+    cluster_window_px: float = Field(0.8, gt=0.0, le=16.0)
+    min_valid_fraction: float = Field(0.3, ge=0.0, le=1.0)
+    min_size_m: float = Field(0.05, ge=0.0, le=1.0)
+
+    @model_validator(mode="before")
+    @classmethod
+    def _no_row_band(cls, data: object) -> object:
+        if isinstance(data, dict) and "row_band" in data:
+            raise ValueError(
+                "row_band is gone: obstacles are now points between the ground and the "
+                "height band of 'perception' (ground.margin_m, band.above_m, band.below_m); "
+                "delete row_band"
+            )
+        return data
+
+
+class TextureConfig(Strict):
+    """The paper's adaptive-threshold texture mask.
+
+    A pixel is textured when it differs from the mean (or median) of its ``window_px`` window by
+    at least ``offset`` grey levels, or has such a pixel within ``spread_px``; disparities of
+    untextured pixels are dropped rather than guessed.
+    """
+
+    method: Literal["mean", "median"] = "mean"
+    window_px: Annotated[int, Field(ge=3, le=31), AfterValidator(_odd)] = 7
+    offset: float = Field(2.0, ge=0.0, le=255.0)
+    spread_px: Annotated[int, Field(ge=1, le=31), AfterValidator(_odd)] = 5
+
+
+class PreprocessConfig(Strict):
+    """Image preparation before matching, as the paper has it; every step off unless asked.
+
+    Attributes:
+        resize_scale: Scale both views (and the rig) by this factor before matching (1: off).
+        median_px: Median denoise window (0: off; 3, 5 or 7).
+        mean_px: Mean (box) denoise window (0: off; odd).
+        texture: Adaptive-threshold texture mask (None: off).
+    """
+
+    resize_scale: float = Field(1.0, ge=0.25, le=1.0)
+    median_px: Literal[0, 3, 5, 7] = 0
+    mean_px: Annotated[int, Field(ge=0, le=15)] = 0
+    texture: TextureConfig | None = None
+
+    @field_validator("mean_px")
+    @classmethod
+    def _mean_window(cls, value: int) -> int:
+        if value and value % 2 == 0:
+            raise ValueError(f"must be 0 or odd; use {value + 1}")
+        return value
+
+
+class PostprocessConfig(Strict):
+    """Disparity post-processing after any matcher.
+
+    Attributes:
+        subpixel_refine: One Gauss-Newton step along the epipolar line after the matcher
+            (off by default: SGBM and SAD interpolate to 1/16 px themselves, and on the
+            Middlebury scenes the extra step raises their sub-pixel error; see the README).
+        refine_window_px: Window of that step (odd).
+        median_size: Median filter on the disparity over each window's measured pixels (0 off,
+            3 or 5).
+        speckle_window_px: An extra speckle pass after the median: islands smaller than this
+            are dropped (0 off; every matcher already removes speckles in its own step).
+        speckle_range_px: Disparity step that separates islands in that pass.
+        fill_holes: Also produce a hole-filled depth map (``filled_depth_m``, for display and
+            recordings). Obstacles never use it: they see measured pixels only.
+        min_texture_snr: Drop disparities where the left view's local contrast (standard
+            deviation over ``texture_window_px``) is below this multiple of the frame's
+            sensor noise: a match in sky or on a blank wall is a guess (0: off).
+        texture_window_px: Window of that test (odd).
+    """
+
+    subpixel_refine: bool = False
+    refine_window_px: int = Field(7, ge=3, le=21)
+    median_size: Literal[0, 3, 5] = 5
+    speckle_window_px: int = Field(0, ge=0)
+    speckle_range_px: float = Field(1.0, gt=0.0)
+    fill_holes: bool = False
+    min_texture_snr: float = Field(1.5, ge=0.0, le=20.0)
+    texture_window_px: Annotated[int, Field(ge=3, le=31), AfterValidator(_odd)] = 7
+
+    @field_validator("refine_window_px")
+    @classmethod
+    def _odd_window(cls, value: int) -> int:
+        if value % 2 == 0:
+            raise ValueError(f"must be odd; use {value + 1}")
+        return value
+
+
+class HistogramConfig(Strict):
+    """The per-frame depth histogram (linearly spaced edges from ``min_m`` to ``max_m``)."""
+
+    min_m: float = Field(0.0, ge=0.0)
+    max_m: float = Field(20.0, gt=0.0, le=1000.0)
+    bins: int = Field(40, ge=1, le=1000)
+
+    @model_validator(mode="after")
+    def _range(self) -> HistogramConfig:
+        if self.max_m <= self.min_m:
+            raise ValueError("max_m must be greater than min_m")
+        return self
