@@ -5,19 +5,24 @@ from __future__ import annotations
 import os
 from pathlib import Path
 
-from avoidd.config import AppConfig, load_config
-from avoidd.errors import ConfigError
+from avoidd.config import AppConfig, FilesSourceConfig, HeadConfig, load_config
+from avoidd.errors import BrokenFrame, ConfigError, SourceError, SourceExhausted
 from avoidd.mavlink.messages import sensor_orientation
 from avoidd.mavlink.signing import load_key
+from avoidd.sources.files import open_files
 from avoidd.types import Mount
 from avoidd.vision.calibration import Calibration, load_calibration
+from avoidd.vision.nearfield import min_range_m
+from avoidd.vision.preprocess import scale_rig
 
 
-def load_all(path: Path) -> tuple[AppConfig, dict[str, Calibration]]:
+def load_all(path: Path, input_given: bool = False) -> tuple[AppConfig, dict[str, Calibration]]:
     """Load a configuration and the calibration of each head, collecting every problem.
 
     Args:
         path: The configuration file.
+        input_given: The command reads its own input (``--input``): a ``files`` source's
+            path is neither required nor read.
 
     Returns:
         The configuration and the calibrations by head name.
@@ -25,7 +30,7 @@ def load_all(path: Path) -> tuple[AppConfig, dict[str, Calibration]]:
     Raises:
         ConfigError: Any problem in the configuration or a calibration file.
     """
-    config = load_config(path)
+    config = load_config(path, input_given)
     calibrations: dict[str, Calibration] = {}
     problems: list[str] = []
     for head in config.heads:
@@ -77,6 +82,54 @@ def load_all(path: Path) -> tuple[AppConfig, dict[str, Calibration]]:
                 f"mavlink.signing.timestamp_file: folder {folder} missing or not writable; "
                 "create it (systemd: StateDirectory=avoidd)"
             )
+    problems.extend(_check_min_distance(path, config, calibrations))
+    if not input_given:
+        problems.extend(_check_recordings(path, config))
     if problems:
         raise ConfigError(problems)
     return config, calibrations
+
+
+def head_min_range_m(head: HeadConfig, calibration: Calibration) -> float:
+    """Nearest range a head measures, from its rig, matcher range and near-field pass."""
+    rig = scale_rig(calibration.rig, head.preprocess.resize_scale)
+    return min_range_m(rig, head.matcher.num_disparities, head.near_field)
+
+
+def _check_min_distance(
+    path: Path, config: AppConfig, calibrations: dict[str, Calibration]
+) -> list[str]:
+    """A configured ``min_distance_cm`` must not claim ranges a head cannot measure."""
+    configured = config.mavlink.obstacle_distance.min_distance_cm
+    if configured is None or len(calibrations) != len(config.heads):
+        return []
+    ranges = {h.name: head_min_range_m(h, calibrations[h.name]) for h in config.heads}
+    name = max(ranges, key=lambda n: ranges[n])
+    needed_cm, _ = config.mavlink.obstacle_distance.model_copy(
+        update={"min_distance_cm": None}
+    ).range_cm(ranges[name])
+    if configured >= needed_cm:
+        return []
+    return [
+        f"{path}: mavlink.obstacle_distance.min_distance_cm: {configured} claims ranges the rig "
+        f"cannot measure (head '{name}' measures from {needed_cm} cm); set it to at least "
+        f"{needed_cm} or leave it out to follow the rig"
+    ]
+
+
+def _check_recordings(path: Path, config: AppConfig) -> list[str]:
+    """Every ``files`` source opens and yields a first frame (``frames.csv`` fully parsed)."""
+    problems = []
+    for head in config.heads:
+        source = head.source
+        if not isinstance(source, FilesSourceConfig):
+            continue
+        try:
+            opened = open_files(source.path, source.fps, paced=False, loop=False)
+            try:
+                opened.read()
+            finally:
+                opened.close()
+        except (SourceError, BrokenFrame, SourceExhausted) as exc:
+            problems.append(f"{path}: heads.{head.name}.source.path: {exc}")
+    return problems

@@ -25,6 +25,7 @@ from avoidd.types import (
 from avoidd.vision.calibration import Calibration
 from avoidd.vision.depth import depth_from_disparity
 from avoidd.vision.matchers import create_matcher
+from avoidd.vision.nearfield import NearField, min_range_m
 from avoidd.vision.postprocess import (
     fill_holes,
     median_smooth,
@@ -64,6 +65,7 @@ class HeadResult:
         obstacles: The head's obstacles, nearest first (when asked for).
         pose: Attitude and height the frame was interpreted with.
         obstacle_points: Points left after ground and band rejection.
+        near_pixels: Pixels measured by the near-field pass (nearer than the main range).
     """
 
     head: str
@@ -78,6 +80,7 @@ class HeadResult:
     obstacles: list[Obstacle] = field(default_factory=list)
     pose: FramePose | None = None
     obstacle_points: int = 0
+    near_pixels: int = 0
 
 
 class Laps:
@@ -120,14 +123,27 @@ class HeadPipeline:
         self._maps = calibration.maps
         self.rectified_from_raw = calibration.rectified_from_raw
         self._matcher = create_matcher(head.matcher)
+        self.near_field = (
+            NearField(head.matcher.num_disparities, head.near_field)
+            if head.near_field.enabled
+            else None
+        )
         self._pre = head.preprocess
         self._post = head.postprocess
         self.work_rig = scale_rig(self.rig, head.preprocess.resize_scale)
         """The rig of the images the matcher sees (differs from ``rig`` when resizing)."""
+        self._min_range_m = min_range_m(
+            self.work_rig, head.matcher.num_disparities, head.near_field
+        )
         self._sectors = head.sectors
         self._histogram = head.histogram
         self._max_range_m = max_range_m
         self.perception = perception or PerceptionConfig()
+
+    @property
+    def min_range_m(self) -> float:
+        """Nearest range this head measures (see :func:`avoidd.vision.nearfield.min_range_m`)."""
+        return self._min_range_m
 
     def default_pose(self, frame: StereoFrame) -> FramePose:
         """The pose recorded with the frame, else the configured attitude and height."""
@@ -196,6 +212,12 @@ class HeadPipeline:
         lap("preprocess")
         disparity = self._matcher.compute(left, right)
         filled_by_matcher = self._matcher.last_filled
+        near_pixels = 0
+        if self.near_field is not None:
+            near = self.near_field.apply(left, right, disparity)
+            disparity, near_pixels = near.disparity, near.near_pixels
+            if filled_by_matcher is not None:
+                filled_by_matcher = filled_by_matcher & ~near.near  # measured, not filled
         lap("match")
         post = self._post
         if post.subpixel_refine:
@@ -204,9 +226,11 @@ class HeadPipeline:
         disparity = remove_speckles(disparity, post.speckle_window_px, post.speckle_range_px)
         if texture is not None:
             disparity[~texture] = np.nan  # untextured: not measured, never guessed
+        textured = texture
         if post.min_texture_snr > 0:
-            textured = texture_gate(left, post.texture_window_px, post.min_texture_snr)
-            disparity[~textured] = np.nan  # contrast below the noise: a guess
+            gate = texture_gate(left, post.texture_window_px, post.min_texture_snr)
+            disparity[~gate] = np.nan  # contrast below the noise: a guess
+            textured = gate if textured is None else textured & gate
         # The display map is filled before anything is blanked; the map obstacles see is not.
         filled_display = fill_holes(disparity) if post.fill_holes else None
         if filled_by_matcher is not None:
@@ -217,6 +241,10 @@ class HeadPipeline:
             # The left border band cannot show an object nearer than f*B/x at column x (its
             # match would be outside the right image), so nothing there is vouched for.
             disparity[:, :band] = np.nan
+        # Textured pixels left without a measurement (occluded, too near, too oblique, in the
+        # band): something may stand there that no bin can vouch for as clear.
+        unmeasured = np.isnan(disparity)
+        unresolved = unmeasured if textured is None else unmeasured & textured
         depth = depth_from_disparity(disparity, self.work_rig)
         filled_depth = None
         if filled_display is not None:
@@ -234,6 +262,7 @@ class HeadPipeline:
             frame.t_capture_ns,
             with_obstacles,
             self.rectified_from_raw,
+            np.count_nonzero(unresolved, axis=0),
         )
         lap("obstacles")
         valid = float(np.count_nonzero(~np.isnan(disparity))) / disparity.size
@@ -250,4 +279,5 @@ class HeadPipeline:
             seen.obstacles,
             seen.pose,
             seen.candidates,
+            near_pixels,
         )

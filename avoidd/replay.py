@@ -104,6 +104,7 @@ def replay(
     source = open_source(
         head.source, calibration.rig, head.name, paced=False, input_path=input_path
     )
+    min_cm, max_cm = od.range_cm(pipeline.min_range_m)
     summary = ReplaySummary()
     totals: dict[str, list[float]] = {stage: [] for stage in (*STAGES, "encode")}
     try:
@@ -119,11 +120,9 @@ def replay(
                 break
             started = time.perf_counter()
             scan = temporal.update(result.scan)
-            sectors_cm = sectors_to_cm(scan, od.min_distance_cm, od.max_distance_cm)
+            sectors_cm = sectors_to_cm(scan, min_cm, max_cm)
             codec.pack(
-                codec.obstacle_distance(
-                    result.t_capture_ns // 1000, sectors_cm, od.min_distance_cm, od.max_distance_cm
-                )
+                codec.obstacle_distance(result.t_capture_ns // 1000, sectors_cm, min_cm, max_cm)
             )
             timing = {**result.timing_ms, "encode": (time.perf_counter() - started) * 1000.0}
             nearest = result.scan.nearest()
@@ -134,9 +133,7 @@ def replay(
                 "t_capture_ns": result.t_capture_ns,
                 "nearest": _nearest_json(nearest),
                 "sectors_cm": sectors_cm,
-                "raw_sectors_cm": sectors_to_cm(
-                    result.scan, od.min_distance_cm, od.max_distance_cm
-                ),
+                "raw_sectors_cm": sectors_to_cm(result.scan, min_cm, max_cm),
                 "obstacles": [o.to_json() for o in result.obstacles],
                 "pose": None
                 if pose is None

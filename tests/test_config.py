@@ -22,6 +22,7 @@ from avoidd.config import (
     HistogramConfig,
     MavlinkConfig,
     MountConfig,
+    NearFieldConfig,
     ObstacleDistance3dConfig,
     ObstacleDistanceConfig,
     ObstaclesConfig,
@@ -166,9 +167,10 @@ def test_broken_config_names_line_path_value_and_fix(
 
 
 def test_missing_section_is_reported_on_its_parent(tmp_path: Path) -> None:
-    text = BASE.split("mavlink:")[0]
+    # The mavlink section may be left out (offline use); a head's source may not.
+    text = BASE.replace("    source:\n      kind: synthetic\n      fps: 15\n", "")
     assert problems(write(tmp_path, text)) == [
-        f"{tmp_path}/avoidd.yaml:1: mavlink: required key is missing; add it"
+        f"{tmp_path}/avoidd.yaml:3: heads[0].source: required key is missing; add it"
     ]
 
 
@@ -330,6 +332,9 @@ heads:
     matcher:
       #@ heads[0].matcher
       kind: sgbm
+    near_field:
+      #@ heads[0].near_field
+      enabled: true
     preprocess:
       #@ heads[0].preprocess
       median_px: 3
@@ -418,6 +423,7 @@ SECTION_MODELS: dict[str, type[BaseModel]] = {
     "heads[0].source": SyntheticSourceConfig,
     "heads[0].source.obstacles[0]": SyntheticObstacleConfig,
     "heads[0].matcher": SgbmConfig,
+    "heads[0].near_field": NearFieldConfig,
     "heads[0].preprocess": PreprocessConfig,
     "heads[0].preprocess.texture": TextureConfig,
     "heads[0].postprocess": PostprocessConfig,

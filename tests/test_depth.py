@@ -23,7 +23,10 @@ def test_depth_formula_with_doffs() -> None:
     assert depth[0, 0] == pytest.approx(1000 * 0.2 / 100.0)
     assert depth[0, 1] == pytest.approx(1000 * 0.2 / 50.0)
     assert np.isnan(depth[0, 2])
-    assert depth[0, 3] == np.inf and depth[0, 4] == np.inf
+    assert depth[0, 3] == np.inf  # d + doffs == 0: at infinity, measured far
+    # d + doffs < 0 would put the point behind the cameras: no measurement, never "far"
+    # (a calibration with doffs -1000 once made every pixel read far, every bin clear).
+    assert np.isnan(depth[0, 4])
     back = disparity_from_depth(depth[:, :2], rig)
     np.testing.assert_allclose(back, disparity[:, :2], rtol=1e-6)
 

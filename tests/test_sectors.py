@@ -13,6 +13,7 @@ from avoidd.perception.perceive import perceive
 from avoidd.perception.sectors import (
     _beyond_reach,
     _bins_of_points,
+    _SizeRule,
     _sorted_search,
     bin_of_bearing,
     column_bearings_deg,
@@ -207,9 +208,10 @@ def test_nearest_cluster_properties(
     st.integers(1, 40),
     st.floats(0.1, 3.0),
     st.sampled_from([0.0, 0.05 / 0.12, 1.0]),
+    st.sampled_from([0.0, 0.05 / 48.0, 0.01]),
 )
 def test_dropping_points_out_of_reach_changes_no_cluster(
-    seed: int, min_pixels: int, window_px: float, size_px_per_px: float
+    seed: int, min_pixels: int, window_px: float, size_px_per_px: float, slab: float
 ) -> None:
     # Scattered points behind and in front of a few dense surfaces, as in a frame: the search
     # on the points left after the histogram cut must give what the search on all of them does.
@@ -224,9 +226,9 @@ def test_dropping_points_out_of_reach_changes_no_cluster(
         disparity.append(np.clip(rng.normal(rng.uniform(1.0, 60.0), spread, size), 0.3, None))
     all_bins = np.concatenate(bins).astype(np.int64)
     all_disparity = np.concatenate(disparity).astype(np.float32)
-    args = (min_pixels, window_px, size_px_per_px)
+    args = (min_pixels, window_px, size_px_per_px, slab)
     distance, index = nearest_cluster(all_bins, all_disparity, 48.0, *args)
-    expected, expected_index = _sorted_search(all_bins, all_disparity, 48.0, *args)
+    expected, expected_index = _sorted_search(all_bins, all_disparity, 48.0, _SizeRule(*args))
     np.testing.assert_array_equal(distance, expected)
     found = index >= 0
     np.testing.assert_array_equal(found, expected_index >= 0)
@@ -242,7 +244,7 @@ def test_the_cut_drops_the_points_behind_a_dense_surface() -> None:
     near = np.array([30.0, 40.0], dtype=np.float32)
     disparity = np.concatenate([wall, far, near])
     bins = np.zeros(disparity.size, dtype=np.int64)
-    kept = _beyond_reach(bins, disparity, 20, 0.8, 0.0)
+    kept = _beyond_reach(bins, disparity, _SizeRule(20, 0.8, 0.0, 0.0))
     assert kept is not None
     assert set(kept.tolist()) == set(range(3000)) | {6000, 6001}
 

@@ -3,10 +3,11 @@
 from __future__ import annotations
 
 import argparse
+import math
 from pathlib import Path
 
 from avoidd.commands import EXIT_OK
-from avoidd.loading import load_all
+from avoidd.loading import head_min_range_m, load_all
 
 
 def configure(name: str, parser: argparse.ArgumentParser) -> None:
@@ -16,16 +17,35 @@ def configure(name: str, parser: argparse.ArgumentParser) -> None:
 
 
 def check_config(args: argparse.Namespace) -> int:
-    """Validate and print a summary of each head and the link."""
+    """Validate and print a summary of each head, what it can measure, and the link."""
     config, calibrations = load_all(args.config)
+    nearest_m = 0.0
     for head in config.heads:
         rig = calibrations[head.name].rig
+        band = head.matcher.num_disparities
+        # The first num_disparities columns cannot be matched: the effective field of view
+        # starts at that column.
+        left_deg = math.degrees(math.atan((band - rig.cx) / rig.fx))
+        right_deg = math.degrees(math.atan((rig.width - 1 - rig.cx) / rig.fx))
+        min_range = head_min_range_m(head, calibrations[head.name])
+        nearest_m = max(nearest_m, min_range)
+        near = "with" if head.near_field.enabled else "without"
         print(
             f"head '{head.name}': {head.source.kind}, {rig.width}x{rig.height}, "
             f"fx {rig.fx:.1f} px, baseline {rig.baseline_m:.4f} m, "
-            f"HFOV {rig.hfov_deg:.1f} deg, yaw {head.mount.yaw_deg:+.0f} deg"
+            f"HFOV {rig.hfov_deg:.1f} deg, yaw {head.mount.yaw_deg:+.0f} deg\n"
+            f"  measures from {min_range:.2f} m ({near} the near-field pass; "
+            f"f*B/(num_disparities-1) = {rig.fx * rig.baseline_m / (band - 1):.2f} m), "
+            f"effective HFOV {right_deg - left_deg:.1f} deg "
+            f"({left_deg:+.1f} to {right_deg:+.1f} deg, left {band} columns unmatched)"
         )
-    signed = ", signed" if config.mavlink.signing is not None else ""
-    print(f"MAVLink {config.mavlink.link} as system {config.mavlink.system_id}{signed}")
+    mavlink = config.mavlink
+    min_cm, max_cm = mavlink.obstacle_distance.range_cm(nearest_m)
+    signed = ", signed" if mavlink.signing is not None else ""
+    if mavlink.connection is None:
+        print("MAVLink: no connection (offline commands only; `avoidd run` needs one)")
+    else:
+        print(f"MAVLink {mavlink.link} as system {mavlink.system_id}{signed}")
+    print(f"OBSTACLE_DISTANCE range {min_cm} to {max_cm} cm")
     print(f"{args.config}: OK")
     return EXIT_OK

@@ -57,7 +57,7 @@ def configure(name: str, parser: argparse.ArgumentParser) -> None:
 
 def run_measure(args: argparse.Namespace) -> int:
     """Range a pixel (default: the nearest obstacle's ground contact) both ways and print."""
-    config, calibrations = load_all(args.config)
+    config, calibrations = load_all(args.config, input_given=args.input is not None)
     head = select_head(config, args.head)
     pipeline, results = process_frames(
         config, head, calibrations[head.name], args.input, args.frame, 1
@@ -102,7 +102,7 @@ def run_calibrate_mount(args: argparse.Namespace) -> int:
         return EXIT_OK
     if args.config is None:
         raise ConfigError(["give --config (fit flat ground) or --height-m and --op-m"])
-    config, calibrations = load_all(args.config)
+    config, calibrations = load_all(args.config, input_given=args.input is not None)
     head = select_head(config, args.head)
     pipeline, results = process_frames(
         config, head, calibrations[head.name], args.input, 0, args.frames

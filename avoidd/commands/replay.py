@@ -25,7 +25,7 @@ def configure(name: str, parser: argparse.ArgumentParser) -> None:
 
 def run_replay(args: argparse.Namespace) -> int:
     """Replay one head and print the summary."""
-    config, calibrations = load_all(args.config)
+    config, calibrations = load_all(args.config, input_given=args.input is not None)
     head = select_head(config, args.head)
     if args.input is not None and not args.input.exists():
         raise ConfigError([f"--input {args.input}: not found; give a folder or a video file"])

@@ -19,4 +19,5 @@ def configure(name: str, parser: argparse.ArgumentParser) -> None:
 def run_daemon(args: argparse.Namespace) -> int:
     """Load the configuration and run the daemon; returns its exit code."""
     config, calibrations = load_all(args.config)
+    _ = config.mavlink.link  # a config without a connection stops here (exit 2)
     return asyncio.run(Daemon(config, calibrations).run())

@@ -32,7 +32,7 @@ class AppConfig(Strict):
 
     version: Literal[1]
     heads: list[HeadConfig] = Field(min_length=1, max_length=8)
-    mavlink: MavlinkConfig
+    mavlink: MavlinkConfig = MavlinkConfig()
     pipeline: PipelineConfig = PipelineConfig()
     perception: PerceptionConfig = PerceptionConfig()
 
@@ -46,11 +46,13 @@ class AppConfig(Strict):
         return value
 
 
-def load_config(path: Path) -> AppConfig:
+def load_config(path: Path, input_given: bool = False) -> AppConfig:
     """Load and validate a configuration file.
 
     Args:
         path: The YAML file.
+        input_given: The command reads its own input (``--input``), so a ``files`` source's
+            path need not exist.
 
     Returns:
         The validated configuration; relative paths in it are resolved against its folder.
@@ -59,4 +61,5 @@ def load_config(path: Path) -> AppConfig:
         ConfigError: One line per problem, naming file, line, key path, value and remedy.
     """
     doc = load_yaml(path)
-    return validate_document(doc, AppConfig, {"base_dir": path.parent.resolve()})
+    context = {"base_dir": path.parent.resolve(), "input_given": input_given}
+    return validate_document(doc, AppConfig, context)

@@ -9,9 +9,13 @@ from pydantic import AfterValidator, BaseModel, ConfigDict, ValidationInfo
 
 
 class Strict(BaseModel):
-    """Base of every config section: frozen, and unknown keys are errors."""
+    """Base of every config section: frozen, unknown keys are errors, numbers are finite.
 
-    model_config = ConfigDict(frozen=True, extra="forbid")
+    NaN and infinity are refused everywhere: no physical quantity in a configuration is
+    either, and one that slipped through (a NaN mount position) made every bin read clear.
+    """
+
+    model_config = ConfigDict(frozen=True, extra="forbid", allow_inf_nan=False)
 
 
 def _resolve_path(value: Path, info: ValidationInfo) -> Path:
@@ -32,7 +36,10 @@ def _existing_file(value: Path) -> Path:
     return value
 
 
-def _existing_path(value: Path) -> Path:
+def _existing_path(value: Path, info: ValidationInfo) -> Path:
+    # A command given its own input (``--input``) does not read this path: no need for it.
+    if (info.context or {}).get("input_given"):
+        return value
     if not value.exists():
         raise ValueError(f"not found: {value}; check the path (relative to the config file)")
     return value

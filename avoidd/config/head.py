@@ -12,6 +12,7 @@ from avoidd.config.sources import SourceConfig
 from avoidd.config.stereo import (
     HistogramConfig,
     MatcherConfig,
+    NearFieldConfig,
     PostprocessConfig,
     PreprocessConfig,
     SectorsConfig,
@@ -25,7 +26,13 @@ class MountConfig(Strict):
     yaw_deg: float = Field(0.0, ge=-180.0, le=360.0)
     pitch_deg: float = Field(0.0, ge=-90.0, le=90.0)
     roll_deg: float = Field(0.0, ge=-180.0, le=180.0)
-    position_m: tuple[float, float, float] = (0.0, 0.0, 0.0)
+    position_m: tuple[
+        Annotated[float, Field(ge=-5.0, le=5.0)],
+        Annotated[float, Field(ge=-5.0, le=5.0)],
+        Annotated[float, Field(ge=-5.0, le=5.0)],
+    ] = (0.0, 0.0, 0.0)
+    """Forward, right and down offset of the left camera from the body origin, each within
+    5 m of it."""
 
 
 _HEAD_NAME = re.compile(r"^[a-z][a-z0-9_-]{0,31}$")
@@ -39,6 +46,7 @@ class HeadConfig(Strict):
     mount: MountConfig = MountConfig()
     source: SourceConfig
     matcher: MatcherConfig = SgbmConfig()
+    near_field: NearFieldConfig = NearFieldConfig()
     preprocess: PreprocessConfig = PreprocessConfig()
     postprocess: PostprocessConfig = PostprocessConfig()
     sectors: SectorsConfig = SectorsConfig()

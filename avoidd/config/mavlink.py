@@ -2,26 +2,43 @@
 
 from __future__ import annotations
 
+import math
 from typing import Annotated, Literal
 
 from pydantic import AfterValidator, Field, field_validator, model_validator
 
 from avoidd.config.base import ConfigPath, Strict
 from avoidd.config.connection import LinkSpec, parse_connection
+from avoidd.errors import ConfigError
 
 
 class ObstacleDistanceConfig(Strict):
-    """OBSTACLE_DISTANCE output: rate and the sensor's range in centimetres."""
+    """OBSTACLE_DISTANCE output: rate and the sensor's range in centimetres.
+
+    Attributes:
+        rate_hz: Messages per second (both autopilots drop the data 0.5 s after the last one).
+        min_distance_cm: The nearest range the message claims to measure. Leave it out: it then
+            follows from the heads (the nearest range the least capable one measures, see
+            ``avoidd check-config``); a value below that is refused, since it would claim
+            ranges the rig cannot measure.
+        max_distance_cm: Readings at or beyond this are sent as clear.
+    """
 
     rate_hz: float = Field(15.0, ge=1.0, le=50.0)
-    min_distance_cm: int = Field(20, ge=1, le=65533)
+    min_distance_cm: int | None = Field(None, ge=1, le=65533)
     max_distance_cm: int = Field(2000, ge=2, le=65533)
 
     @model_validator(mode="after")
     def _range(self) -> ObstacleDistanceConfig:
-        if self.max_distance_cm <= self.min_distance_cm:
+        if self.min_distance_cm is not None and self.max_distance_cm <= self.min_distance_cm:
             raise ValueError("max_distance_cm must be greater than min_distance_cm")
         return self
+
+    def range_cm(self, rig_min_range_m: float) -> tuple[int, int]:
+        """The ``(min, max)`` distances to send, given the nearest range the heads measure."""
+        derived = max(1, math.ceil(rig_min_range_m * 100.0 - 1e-6))
+        minimum = self.min_distance_cm if self.min_distance_cm is not None else derived
+        return minimum, max(self.max_distance_cm, minimum + 1)
 
 
 class StreamsConfig(Strict):
@@ -98,13 +115,16 @@ class MavlinkConfig(Strict):
     """The MAVLink link and avoidd's identity on it.
 
     Attributes:
+        connection: Where the autopilot is (see ``avoidd.config.connection``). Only ``run``
+            needs it; replay and the other offline commands work without it (and without
+            the whole ``mavlink`` section).
         system_id: The vehicle's system id, or "auto" to learn it from the first autopilot
             heartbeat (avoidd uses 1 until then). Messages of other systems are ignored.
         autopilot_component_id: Component id of the autopilot (1).
         link_timeout_s: The link is down when no autopilot heartbeat came for this long.
     """
 
-    connection: str
+    connection: str | None = None
     system_id: int | Literal["auto"] = "auto"
     component_id: int = Field(196, ge=1, le=255)
     autopilot_component_id: int = Field(1, ge=1, le=255)
@@ -125,13 +145,25 @@ class MavlinkConfig(Strict):
 
     @field_validator("connection")
     @classmethod
-    def _connection(cls, value: str) -> str:
-        parse_connection(value)
+    def _connection(cls, value: str | None) -> str | None:
+        if value is not None:
+            parse_connection(value)
         return value
 
     @property
     def link(self) -> LinkSpec:
-        """The parsed connection string."""
+        """The parsed connection string.
+
+        Raises:
+            ConfigError: No connection is configured.
+        """
+        if self.connection is None:
+            raise ConfigError(
+                [
+                    "mavlink.connection: not set; the daemon needs the autopilot's link, "
+                    "e.g. connection: udpout:127.0.0.1:14550 (see docs/configuration.md)"
+                ]
+            )
         return parse_connection(self.connection)
 
     @property

@@ -165,6 +165,12 @@ class SectorsConfig(Strict):
             band; see ``avoidd.perception.sectors.nearest_cluster``).
         min_valid_fraction: Below this share of measured pixels a bin without an obstacle is
             unknown rather than clear.
+        min_free_fraction: A bin without an obstacle is clear only when at least this share of
+            its pixels show free space out to the maximum range (measured beyond it, with the
+            ray inside the height band all the way); else it is unknown.
+        max_unresolved_fraction: A bin without an obstacle is clear only when at most this
+            share of its pixels are textured but unmeasured (occluded, nearer than any search
+            range, too oblique to match): something may stand there.
         min_size_m: A cluster must also cover a square of this side at its own distance (so
             near clusters need many pixels, and pixels smeared off an edge cannot pass for an
             object). The default is the smallest obstacle avoidd must see: a 5 cm pole.
@@ -173,6 +179,8 @@ class SectorsConfig(Strict):
     min_pixels: int = Field(20, ge=1)
     cluster_window_px: float = Field(0.8, gt=0.0, le=16.0)
     min_valid_fraction: float = Field(0.3, ge=0.0, le=1.0)
+    min_free_fraction: float = Field(0.05, ge=0.0, le=1.0)
+    max_unresolved_fraction: float = Field(0.1, ge=0.0, le=1.0)
     min_size_m: float = Field(0.05, ge=0.0, le=1.0)
 
     @model_validator(mode="before")
@@ -185,6 +193,28 @@ class SectorsConfig(Strict):
                 "delete row_band"
             )
         return data
+
+
+class NearFieldConfig(Strict):
+    """The near-field pass (see ``avoidd.vision.nearfield``).
+
+    A second, coarse SGBM pass on both views shrunk by ``scale`` searches ``scale`` times
+    farther than its ``num_disparities``: objects nearer than the main matcher's range are
+    measured there instead of reading farther than they are, and the head's minimum range
+    becomes ``f B / ((num_disparities - 1) * scale)``.
+
+    Attributes:
+        enabled: Run the pass (off only for benchmarks and comparisons: without it an object
+            nearer than the main range can read far).
+        scale: Shrink factor of the coarse pass (2 or 4).
+        num_disparities: Search range of the coarse pass in its own (shrunk) pixels.
+        block_size: SGBM block size of the coarse pass (odd).
+    """
+
+    enabled: bool = True
+    scale: Literal[2, 4] = 4
+    num_disparities: DisparityRange = 64
+    block_size: Annotated[int, Field(ge=3, le=11), AfterValidator(_odd)] = 5
 
 
 class TextureConfig(Strict):

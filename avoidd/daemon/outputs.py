@@ -79,6 +79,9 @@ class Outputs:
         self.heads = heads
         self.link = link
         self.vehicle = vehicle
+        nearest_m = max((head.pipeline.min_range_m for head in heads), default=0.0)
+        self.min_cm, self.max_cm = config.obstacle_distance.range_cm(nearest_m)
+        """The range the messages claim: from what the least capable head can measure."""
 
     def current_scan(self, now_ns: int) -> SectorScan | None:
         """The heads' fresh scans merged (see :func:`current_scan`)."""
@@ -106,19 +109,14 @@ class Outputs:
                 distances = unknown_cm()
                 time_usec = self.vehicle.time_usec(now_ns)
             else:
-                distances = sectors_to_cm(scan, od.min_distance_cm, od.max_distance_cm)
+                distances = sectors_to_cm(scan, self.min_cm, self.max_cm)
                 time_usec = self.vehicle.time_usec(scan.t_capture_ns)
-            self.link.send(
-                codec.obstacle_distance(
-                    time_usec, distances, od.min_distance_cm, od.max_distance_cm
-                )
-            )
+            self.link.send(codec.obstacle_distance(time_usec, distances, self.min_cm, self.max_cm))
 
         await every(od.rate_hz, send)
 
     async def distance_sensor(self) -> None:
         """Send DISTANCE_SENSOR at its rate, one per fresh head (nothing for a stale one)."""
-        od = self.config.obstacle_distance
         codec = self.link.codec
         sensors = {
             head.name: DistanceSensorHead(head.pipeline.work_rig, head.pipeline.mount, index)
@@ -133,7 +131,7 @@ class Outputs:
                 if scan is None or latest is None:
                     continue  # stale: say nothing, the autopilot times the sensor out
                 sensor = sensors[head.name]
-                reading_cm = sensor.reading_cm(scan, od.min_distance_cm, od.max_distance_cm)
+                reading_cm = sensor.reading_cm(scan, self.min_cm, self.max_cm)
                 if reading_cm is None:
                     continue
                 self.link.send(
@@ -141,8 +139,8 @@ class Outputs:
                         codec,
                         self.vehicle.time_boot_ms(latest.t_capture_ns),
                         reading_cm,
-                        od.min_distance_cm,
-                        od.max_distance_cm,
+                        self.min_cm,
+                        self.max_cm,
                         latest.valid_fraction,
                     )
                 )
@@ -151,7 +149,6 @@ class Outputs:
 
     async def obstacle_distance_3d(self) -> None:
         """Send OBSTACLE_DISTANCE_3D at its rate: the nearest points of the merged scan."""
-        od = self.config.obstacle_distance
         od3 = self.config.obstacle_distance_3d
         codec = self.link.codec
 
@@ -163,7 +160,7 @@ class Outputs:
             for point in nearest_points(scan, od3.max_points):
                 self.link.send(
                     codec.obstacle_distance_3d(
-                        time_boot_ms, point, od.min_distance_cm / 100, od.max_distance_cm / 100
+                        time_boot_ms, point, self.min_cm / 100, self.max_cm / 100
                     )
                 )
 

@@ -177,7 +177,7 @@ def run_case(case: SceneCase, noise_std: float = 1.5) -> SceneResult:
         truth.distance_m if truth is not None else None,
         nearest.distance_m if nearest is not None else None,
     )
-    occupied = _truth_bins(rendered.truth, mount, case.pose, perception)
+    occupied = truth_bins(rendered.truth, mount, case.pose, perception)
     distance = result.scan.distance_m
     for finite_bin in np.flatnonzero(np.isfinite(distance)):
         near = {(int(finite_bin) + k) % SECTOR_COUNT for k in (-1, 0, 1)}
@@ -192,7 +192,7 @@ def run_case(case: SceneCase, noise_std: float = 1.5) -> SceneResult:
     return score
 
 
-def _truth_bins(
+def truth_bins(
     truth: Any, mount: Mount, pose: FramePose, perception: PerceptionConfig
 ) -> dict[int, float]:
     """Exact nearest obstacle distance of every bin an obstacle occupies (in band, in range)."""

@@ -9,6 +9,7 @@ from __future__ import annotations
 
 import asyncio
 import logging
+import math
 import time
 from collections import Counter
 from dataclasses import dataclass
@@ -91,6 +92,8 @@ class Vehicle:
         self.position: LocalPosition | None = None
         self.rangefinder: Rangefinder | None = None
         self.ignored: Counter[int] = Counter()
+        self.invalid: Counter[str] = Counter()
+        """Messages dropped because a value was not a finite number, by type."""
         self.requests = [
             StreamRequest(name, mav.message_id(name), round(1e6 / hz))
             for name, hz in (
@@ -165,12 +168,19 @@ class Vehicle:
             )
 
     def _on_attitude(self, message: mav.Message, received_ns: int) -> None:
+        if not all(math.isfinite(v) for v in (message.roll, message.pitch, message.yaw)):
+            self.invalid["ATTITUDE"] += 1  # an attitude that is not a number is no attitude
+            return
         self.clock.observe_boot_ms(message.time_boot_ms, received_ns)
         t_ns = self.clock.to_local_ns(message.time_boot_ms)
         assert t_ns is not None
         self.attitude.add(Attitude(t_ns, message.roll, message.pitch, message.yaw))
 
     def _on_local_position_ned(self, message: mav.Message, received_ns: int) -> None:
+        m = message
+        if not all(math.isfinite(v) for v in (m.x, m.y, m.z, m.vx, m.vy, m.vz)):
+            self.invalid["LOCAL_POSITION_NED"] += 1
+            return
         self.clock.observe_boot_ms(message.time_boot_ms, received_ns)
         t_ns = self.clock.to_local_ns(message.time_boot_ms)
         assert t_ns is not None

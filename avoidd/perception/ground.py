@@ -21,10 +21,13 @@ class ObstaclePoints(NamedTuple):
     Attributes:
         mask: (H, W), True at those pixels.
         level: Their level-frame coordinates, (N,) each, in row-major pixel order.
+        free_per_column: (W,) pixels per column that show free space (see
+            :func:`free_space_evidence`).
     """
 
     mask: BoolArray
     level: Components
+    free_per_column: npt.NDArray[np.int64]
 
 
 def obstacle_points(
@@ -88,7 +91,50 @@ def obstacle_points(
         right += np.float32(to_level.translation[1])
         keep &= forward * forward + right * right < np.float32(max_range_m * max_range_m)
     rise += np.float32(camera_down)  # now the down coordinate
-    return ObstaclePoints(keep, Components(forward[keep], right[keep], rise[keep]))
+    free = free_space_evidence(depth_m, rig, to_level, band, max_range_m)
+    return ObstaclePoints(
+        keep,
+        Components(forward[keep], right[keep], rise[keep]),
+        np.count_nonzero(free, axis=0).astype(np.int64),
+    )
+
+
+def free_space_evidence(
+    depth_m: FloatArray, rig: RectifiedRig, to_level: Pose, band: BandConfig, max_range_m: float
+) -> BoolArray:
+    """Pixels that show free space out to the maximum range within the height band.
+
+    A pixel is evidence that its direction is clear when it was measured (a finite or
+    infinite depth: NaN is not a measurement), its point lies at or beyond ``max_range_m``
+    horizontally, and its ray is still inside the height band there, so it crossed the band
+    all the way without meeting anything. A bin is reported clear only with enough of these;
+    obstacle points that form no cluster, unmeasured pixels and impossible geometry (NaN in
+    the pose) are no evidence of anything.
+
+    Args:
+        depth_m: Optical depth of every pixel (NaN unmeasured, ``inf`` measured far).
+        rig: The rig of the depth map.
+        to_level: Camera-to-level pose of the frame.
+        band: Height band parameters.
+        max_range_m: The range beyond which a direction counts as clear.
+
+    Returns:
+        (H, W) boolean mask.
+    """
+    forward = axis_per_depth(rig, depth_m.shape, to_level, 0)
+    right = axis_per_depth(rig, depth_m.shape, to_level, 1)
+    down = axis_per_depth(rig, depth_m.shape, to_level, 2)
+    horizontal = np.sqrt(forward * forward + right * right)
+    camera_down = np.float32(to_level.translation[2])
+    with np.errstate(invalid="ignore", divide="ignore"):
+        beyond = depth_m * horizontal >= np.float32(max_range_m)
+        # Height of the ray where it reaches the maximum range (the camera's own offset from
+        # the body origin is small next to that range and is taken at the camera).
+        down_there = down / horizontal * np.float32(max_range_m) + camera_down
+        inside = (down_there >= np.float32(-band.above_m)) & (
+            down_there <= np.float32(band.below_m)
+        )
+    return np.asarray(beyond & inside, dtype=np.bool_)
 
 
 def height_from_rangefinder(distance_m: float, roll_deg: float, pitch_deg: float) -> float:

@@ -145,6 +145,7 @@ def _describe(
         min(sectors.min_pixels, members.size),
         sectors.cluster_window_px,
         sectors.min_size_m / baseline_m,
+        sectors.min_size_m / focal_baseline,
     )
     if not np.isfinite(distance[0]):
         return None

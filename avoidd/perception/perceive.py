@@ -2,11 +2,14 @@
 
 from __future__ import annotations
 
+import math
 from typing import NamedTuple
 
 import numpy as np
+import numpy.typing as npt
 
 from avoidd.config import HistogramConfig, PerceptionConfig, SectorsConfig
+from avoidd.errors import BrokenFrame
 from avoidd.perception.frames import Matrix, Pose, body_to_level, camera_to_level
 from avoidd.perception.ground import obstacle_points
 from avoidd.perception.obstacles import Obstacle, cluster_obstacles
@@ -42,6 +45,7 @@ def perceive(
     t_capture_ns: int,
     with_obstacles: bool = False,
     rectified_from_raw: Matrix | None = None,
+    unresolved_per_column: npt.NDArray[np.integer] | None = None,
 ) -> Perception:
     """Turn a measured depth map into the head's sector scan (and obstacles).
 
@@ -58,10 +62,24 @@ def perceive(
         with_obstacles: Also cluster the points into obstacles.
         rectified_from_raw: Rotation from the physical left camera to the rectified view
             (the mount describes the physical camera); identity when None.
+        unresolved_per_column: (W,) textured pixels per column left without a measurement
+            (a bin with many is not clear); None: none.
 
     Returns:
         The head's perception of the frame.
+
+    Raises:
+        BrokenFrame: The pose or the mount holds a number that is not finite.
     """
+    numbers = (pose.roll_deg, pose.pitch_deg, pose.height_m, *mount.position_m)
+    if not all(math.isfinite(value) for value in numbers) or not np.isfinite(rig.fx * rig.fy):
+        # Impossible geometry must not turn into "nothing in the way": the frame is dropped,
+        # and a head that only yields such frames goes stale.
+        raise BrokenFrame(
+            f"frame at {t_capture_ns} ns: pose roll {pose.roll_deg}, pitch {pose.pitch_deg}, "
+            f"height {pose.height_m} ({pose.source}/{pose.height_source}) or mount position "
+            f"{mount.position_m} is not a finite number; dropped"
+        )
     to_level = camera_to_level(mount, pose.roll_deg, pose.pitch_deg)
     if rectified_from_raw is not None:
         # Rectified points turn back into the physical camera's frame first.
@@ -75,6 +93,10 @@ def perceive(
     scan = sector_scan(
         Candidates(forward, right, down, level_from_body),
         valid_per_column,
+        points.free_per_column,
+        unresolved_per_column
+        if unresolved_per_column is not None
+        else np.zeros(depth_m.shape[1], dtype=np.int64),
         depth_m.shape[0],
         rig,
         mount,

@@ -90,6 +90,8 @@ class Candidates(NamedTuple):
 def sector_scan(
     candidates: Candidates,
     valid_per_column: npt.NDArray[np.integer],
+    free_per_column: npt.NDArray[np.integer],
+    unresolved_per_column: npt.NDArray[np.integer],
     rows: int,
     rig: RectifiedRig,
     mount: Mount,
@@ -100,12 +102,19 @@ def sector_scan(
 
     Every point counts. A bin reports its nearest cluster of at least ``min_pixels`` points
     (see :func:`nearest_cluster`), measured horizontally from the body origin in the level
-    frame; without one it is clear when enough of the pixels of its image columns were
-    measured, else unknown. Bins outside the field of view are unknown.
+    frame. Without one it is clear only on positive evidence: at least ``min_valid_fraction``
+    of the pixels of its image columns were measured, at least ``min_free_fraction`` of them
+    show free space out to the maximum range (see
+    :func:`avoidd.perception.ground.free_space_evidence`), and at most
+    ``max_unresolved_fraction`` are textured but unmeasured (where an occluded, too near or
+    too oblique surface may stand); otherwise it is unknown. Bins outside the field of view
+    are unknown.
 
     Args:
         candidates: The obstacle points (already limited to the sensor's maximum range).
         valid_per_column: (W,) measured pixels per image column (any surface, ground too).
+        free_per_column: (W,) pixels per column that show free space to the maximum range.
+        unresolved_per_column: (W,) textured pixels per column without a measurement.
         rows: Pixels per column.
         rig: The rectified rig of the depth map.
         mount: The head's mount.
@@ -118,6 +127,10 @@ def sector_scan(
     columns = _column_geometry(rig, mount)
     total = np.bincount(columns.bins, minlength=SECTOR_COUNT) * rows
     valid_count = np.bincount(columns.bins, weights=valid_per_column, minlength=SECTOR_COUNT)
+    free_count = np.bincount(columns.bins, weights=free_per_column, minlength=SECTOR_COUNT)
+    unresolved_count = np.bincount(
+        columns.bins, weights=unresolved_per_column, minlength=SECTOR_COUNT
+    )
 
     forward, right = candidates.forward_m, candidates.right_m
     range_m = np.sqrt(forward * forward + right * right)  # a third of np.hypot's time
@@ -129,6 +142,7 @@ def sector_scan(
         params.min_pixels,
         params.cluster_window_px,
         params.min_size_m / rig.baseline_m,
+        params.min_size_m / float(focal_baseline),
     )
     has_obstacle = np.isfinite(nearest)
     distance = nearest.astype(np.float32)
@@ -140,9 +154,11 @@ def sector_scan(
     # Body = transpose(level_from_body) @ level; with row vectors that is level @ R.
     points[has_obstacle] = (level @ candidates.level_from_body).astype(np.float32)
 
-    with np.errstate(invalid="ignore", divide="ignore"):
-        valid_fraction = np.where(total > 0, valid_count / np.maximum(total, 1), 0.0)
+    valid_fraction = valid_count / np.maximum(total, 1)
+    free_fraction = free_count / np.maximum(total, 1)
     clear = ~has_obstacle & (total > 0) & (valid_fraction >= params.min_valid_fraction)
+    clear &= free_fraction >= params.min_free_fraction
+    clear &= unresolved_count / np.maximum(total, 1) <= params.max_unresolved_fraction
     distance[clear] = np.inf
     outside = ~columns.covered
     distance[outside] = np.nan
@@ -180,17 +196,22 @@ def nearest_cluster(
     min_pixels: int,
     window_px: float,
     min_size_px_per_px: float = 0.0,
+    slab_px_per_px2: float = 0.0,
 ) -> tuple[FloatArray, IntArray]:
     """Distance of the nearest dense cluster of points in every bin, and the point it reports.
 
     Working in disparity (where stereo noise is about constant), a bin's cluster starts at the
-    largest disparity ``d`` that has enough points within ``window_px`` below it: at least
-    ``min_pixels``, and at least the pixel area of a square ``min_size_px_per_px * d`` pixels
-    on a side. That square is an object of a fixed size in metres (its side in pixels is
-    ``f * size / Z = size / B * d``), so near clusters must be as large as a small real object
-    there, and a few stray or edge-smeared pixels cannot pass for one. The bin reports the point
-    a quarter of the way into that window from its near end: close to the nearest surface when
-    the window spans an oblique face, and barely moved by noise when it holds one surface.
+    largest disparity ``d`` that has at least ``min_pixels`` points within ``window_px`` below
+    it, and at least the pixel area of a square ``min_size_px_per_px * d`` pixels on a side
+    within a slab as deep as that square is wide. The square is an object of a fixed size in
+    metres (its side in pixels is ``f * size / Z = size / B * d``), so near clusters must be
+    as large as a small real object there, and a few stray or edge-smeared pixels cannot pass
+    for one. The slab (``size`` in depth: ``size / (f B) * d**2`` pixels of disparity, at least
+    ``window_px``) lets a face seen nearly edge-on count as what it is: its pixels spread over
+    many disparities, and near the camera a window of ``window_px`` holds a single column of
+    it. The bin reports the point a quarter of the way into the window from its near end: close
+    to the nearest surface when the window spans an oblique face, and barely moved by noise
+    when it holds one surface.
 
     Args:
         bins: Sector index of every point.
@@ -200,6 +221,8 @@ def nearest_cluster(
         window_px: Width of the cluster window in disparity pixels.
         min_size_px_per_px: ``size / B``: the side, in pixels per pixel of disparity, of the
             square a cluster must cover (0: no size rule).
+        slab_px_per_px2: ``size / (f B)``: the depth of that square in disparity is this times
+            ``d**2`` (0: the window).
 
     Returns:
         (72,) distances in metres (NaN where a bin has no cluster) and (72,) the index of the
@@ -207,17 +230,33 @@ def nearest_cluster(
     """
     if bins.size < min_pixels:
         return _no_clusters()
-    kept = _beyond_reach(bins, disparity_px, min_pixels, window_px, min_size_px_per_px)
+    rule = _SizeRule(min_pixels, window_px, min_size_px_per_px, slab_px_per_px2)
+    kept = _beyond_reach(bins, disparity_px, rule)
     if kept is None:
-        return _sorted_search(
-            bins, disparity_px, focal_baseline, min_pixels, window_px, min_size_px_per_px
-        )
-    distance, chosen = _sorted_search(
-        bins[kept], disparity_px[kept], focal_baseline, min_pixels, window_px, min_size_px_per_px
-    )
+        return _sorted_search(bins, disparity_px, focal_baseline, rule)
+    distance, chosen = _sorted_search(bins[kept], disparity_px[kept], focal_baseline, rule)
     found = chosen >= 0
     chosen[found] = kept[chosen[found]]
     return distance, chosen
+
+
+class _SizeRule(NamedTuple):
+    """What makes a cluster (see :func:`nearest_cluster`)."""
+
+    min_pixels: int
+    window_px: float
+    min_size_px_per_px: float
+    slab_px_per_px2: float
+
+    def slab_px(self, disparity_px: npt.NDArray[np.floating]) -> npt.NDArray[np.float64]:
+        """Disparity depth of the size slab at each disparity (at least the window)."""
+        d = np.asarray(disparity_px, dtype=np.float64)
+        return np.maximum(self.window_px, self.slab_px_per_px2 * d * d)
+
+    def area_px(self, disparity_px: npt.NDArray[np.floating]) -> npt.NDArray[np.float64]:
+        """Pixel area of the size square at each disparity."""
+        side = self.min_size_px_per_px * np.asarray(disparity_px, dtype=np.float64)
+        return side * side
 
 
 def _no_clusters() -> tuple[FloatArray, IntArray]:
@@ -238,25 +277,24 @@ _CELL_SHRINK = 1.0 - 1e-4
 
 
 def _beyond_reach(
-    bins: IntArray,
-    disparity_px: FloatArray,
-    min_pixels: int,
-    window_px: float,
-    min_size_px_per_px: float,
+    bins: IntArray, disparity_px: FloatArray, rule: _SizeRule
 ) -> npt.NDArray[np.intp] | None:
     """The points that can take part in their bin's nearest cluster (None: all of them).
 
     Points are counted in cells a little narrower than a quarter of ``window_px``. Four
     consecutive cells that together hold as many points as a cluster needs at their near edge
-    make their nearest point a cluster seed, since that point's window covers all four. The
-    bin's nearest cluster therefore starts in those cells or nearer, and its window reaches at
-    most five cells lower: every point below that cannot change the result and is dropped
-    before the sort. Most points of a frame lie behind the first dense surface of their bin.
+    make their nearest point a cluster seed, since that point's window (and its slab, which is
+    never narrower) covers all four. The bin's nearest cluster therefore starts in those cells
+    or nearer, and its window and slab reach at most five cells plus the slab lower (a slab
+    ``k d**2`` deep ends lower the lower it starts, for any ``d`` below ``1 / 2k``): every point
+    below that cannot change the result and is dropped before the sort. Most points of a frame
+    lie behind the first dense surface of their bin.
     """
     if bins.size < _PREFILTER_MIN_POINTS:
         return None
+    min_pixels = rule.min_pixels
     per_window = _CELLS_PER_WINDOW
-    width_px = window_px * _CELL_SHRINK / per_window
+    width_px = rule.window_px * _CELL_SHRINK / per_window
     cells = min(int(float(np.max(disparity_px)) / width_px) + 1, _MAX_CELLS)
     index = (disparity_px * np.float32(1.0 / width_px)).astype(np.int64)
     np.minimum(index, cells - 1, out=index)  # the top cell also holds everything nearer
@@ -268,11 +306,12 @@ def _beyond_reach(
     runs[:, per_window:] -= running[:, :-per_window]
     # A little past each cell's near edge, to stay on the safe side of float rounding.
     near_edge_px = (np.arange(cells, dtype=np.float64) + 1.001) * width_px
-    needed = np.maximum(float(min_pixels), (min_size_px_per_px * near_edge_px) ** 2)
+    needed = np.maximum(float(min_pixels), rule.area_px(near_edge_px))
     needed[-1] = np.inf  # the top cell has no near edge
     dense = runs >= needed[None, :]
     nearest_dense = cells - 1 - np.argmax(dense[:, ::-1], axis=1)
-    reach = 2 * per_window + 1
+    slab_cells = np.ceil(rule.slab_px(near_edge_px[nearest_dense]) / width_px).astype(np.int64)
+    reach = 2 * per_window + 1 + slab_cells
     lowest_kept = np.where(dense.any(axis=1), np.maximum(nearest_dense - reach, 0), 0)
     dropped = running[np.arange(SECTOR_COUNT), np.maximum(lowest_kept - 1, 0)]
     dropped[lowest_kept == 0] = 0
@@ -283,20 +322,16 @@ def _beyond_reach(
 
 
 def _sorted_search(
-    bins: IntArray,
-    disparity_px: FloatArray,
-    focal_baseline: float | np.float32,
-    min_pixels: int,
-    window_px: float,
-    min_size_px_per_px: float,
+    bins: IntArray, disparity_px: FloatArray, focal_baseline: float | np.float32, rule: _SizeRule
 ) -> tuple[FloatArray, IntArray]:
     """:func:`nearest_cluster` by one sort of all the points it is given."""
     distance, chosen = _no_clusters()
-    if bins.size < min_pixels:
+    if bins.size < rule.min_pixels:
         return distance, chosen
     # One sort orders points by bin, then by decreasing disparity (nearest first); a key
     # that grows along that order lets a binary search count each point's window.
-    span = float(np.max(disparity_px)) + window_px + 1.0
+    top_px = float(np.max(disparity_px))
+    span = top_px + float(rule.slab_px(np.array([top_px]))[0]) + 1.0
     keys = bins.astype(np.float64) * span + (span - disparity_px.astype(np.float64))
     # Ties (equal bin and disparity) are interchangeable, so an unstable sort is fine and
     # about four times faster than a stable one here.
@@ -304,9 +339,16 @@ def _sorted_search(
     keys = keys[order]
     sorted_bins = bins[order]
     sorted_disp = disparity_px[order].astype(np.float64)
-    counts = np.searchsorted(keys, keys + window_px, side="right") - np.arange(keys.size)
-    needed = np.maximum(float(min_pixels), (min_size_px_per_px * sorted_disp) ** 2)
-    dense = np.flatnonzero(counts >= needed)
+    first_index = np.arange(keys.size)
+    counts = np.searchsorted(keys, keys + rule.window_px, side="right") - first_index
+    dense_enough = counts >= rule.min_pixels
+    if rule.min_size_px_per_px > 0:
+        slab = rule.slab_px(sorted_disp)
+        in_slab = counts
+        if rule.slab_px_per_px2 > 0:
+            in_slab = np.searchsorted(keys, keys + slab, side="right") - first_index
+        dense_enough &= in_slab >= rule.area_px(sorted_disp)
+    dense = np.flatnonzero(dense_enough)
     if dense.size == 0:
         return distance, chosen
     dense_bins = sorted_bins[dense]

@@ -21,11 +21,18 @@ Matrix3 = tuple[tuple[float, float, float], tuple[float, float, float], tuple[fl
 
 
 class _Strict(BaseModel):
-    model_config = ConfigDict(frozen=True, extra="forbid")
+    # NaN and infinity are no calibration value: refused like any other impossible number.
+    model_config = ConfigDict(frozen=True, extra="forbid", allow_inf_nan=False)
 
 
 class RectifiedModel(_Strict):
-    """An already-rectified rig (rows aligned, both views share fx, fy and cy)."""
+    """An already-rectified rig (rows aligned, both views share fx, fy and cy).
+
+    Every value must describe a camera that can exist: focal lengths between a tenth and a
+    hundred times the image width, the principal point inside the image, and ``doffs`` (the
+    right view's principal point minus the left's) within half the width; beyond that, depth
+    ``f B / (d + doffs)`` turns negative for ordinary disparities.
+    """
 
     width: int = Field(gt=0, le=16384)
     height: int = Field(gt=0, le=16384)
@@ -36,11 +43,35 @@ class RectifiedModel(_Strict):
     baseline_m: float = Field(gt=0.0, le=10.0)
     doffs: float = 0.0
 
+    @model_validator(mode="after")
+    def _physical(self) -> RectifiedModel:
+        problems = []
+        for name, value in (("fx", self.fx), ("fy", self.fy)):
+            if not 0.1 * self.width <= value <= 100.0 * self.width:
+                problems.append(
+                    f"{name} {value:g} px is not a focal length for a {self.width} px wide "
+                    f"image (expected {0.1 * self.width:g} to {100.0 * self.width:g})"
+                )
+        if not 0.0 <= self.cx <= self.width:
+            problems.append(f"cx {self.cx:g} lies outside the image (0 to {self.width})")
+        if not 0.0 <= self.cy <= self.height:
+            problems.append(f"cy {self.cy:g} lies outside the image (0 to {self.height})")
+        if abs(self.doffs) > 0.5 * self.width:
+            problems.append(
+                f"doffs {self.doffs:g} px is beyond half the image width; it is the right "
+                "principal point's column minus the left's (0 for most rectified rigs)"
+            )
+        if problems:
+            raise ValueError("; ".join(problems))
+        return self
+
 
 def _check_camera_matrix(value: Matrix3) -> Matrix3:
     k = np.asarray(value, dtype=np.float64)
     if k[0, 0] <= 0 or k[1, 1] <= 0 or not np.allclose(k[2], (0.0, 0.0, 1.0)):
         raise ValueError("a camera matrix is [[fx, 0, cx], [0, fy, cy], [0, 0, 1]] with fx, fy > 0")
+    if k[0, 2] < 0 or k[1, 2] < 0:
+        raise ValueError("the principal point (cx, cy) of a camera matrix lies in the image")
     return value
 
 

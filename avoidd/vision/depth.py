@@ -16,8 +16,9 @@ def depth_from_disparity(disparity_px: FloatArray, rig: RectifiedRig) -> FloatAr
         rig: The rectified rig (focal length, baseline, principal point offset).
 
     Returns:
-        Depth in metres, float32. NaN where the disparity is invalid; ``inf`` where
-        ``d + doffs <= 0`` (a point at or beyond infinity: measured, and far).
+        Depth in metres, float32. NaN where the disparity is invalid or ``d + doffs < 0``
+        (a point behind the cameras: impossible, so no measurement); ``inf`` where
+        ``d + doffs == 0`` (a point at infinity: measured, and far).
     """
     shifted = disparity_px.astype(np.float32, copy=False)
     if rig.doffs_px:
@@ -25,7 +26,8 @@ def depth_from_disparity(disparity_px: FloatArray, rig: RectifiedRig) -> FloatAr
     numerator = np.float32(rig.fx * rig.baseline_m)
     with np.errstate(divide="ignore", invalid="ignore"):
         depth = np.divide(numerator, shifted, dtype=np.float32)  # NaN stays NaN
-        depth[shifted <= 0] = np.inf
+        depth[shifted == 0] = np.inf
+        depth[shifted < 0] = np.nan
     return depth
 
 
