@@ -10,6 +10,7 @@ from pathlib import Path
 import numpy as np
 
 from avoidd.config import load_config
+from avoidd.mavlink.layout import read_bins
 from avoidd.perception.sectors import bin_of_bearing
 from avoidd.sources.synthetic import SyntheticSource
 from avoidd.sources.truth import nearest_obstacle
@@ -90,7 +91,9 @@ async def test_daemon_process_on_synthetic_camera(tmp_path: Path) -> None:
     assert len(fresh) >= 0.9 * len(scans), "scans went stale while running"
     errors = []
     for message in fresh:
-        distances = np.array(message.distances)
+        distances = np.array(
+            read_bins(message.distances, message.increment_f, message.angle_offset)
+        )
         nearest_bin = int(np.argmin(distances))
         errors.append(distances[truth_bin] / 100.0 / truth_m - 1.0)
         assert nearest_bin in {(truth_bin - 1) % 72, truth_bin, (truth_bin + 1) % 72}

@@ -11,6 +11,8 @@ from pathlib import Path
 
 import pytest
 
+from avoidd.mavlink.layout import read_bins
+from avoidd.mavlink.mock_autopilot import MockAutopilot
 from tests.helpers import (
     MavlinkPeer,
     free_udp_port,
@@ -45,13 +47,17 @@ async def test_udpout_messages_decode_field_by_field(tmp_path: Path) -> None:
     assert od.sensor_type == 4  # MAV_DISTANCE_SENSOR_UNKNOWN
     assert len(od.distances) == 72
     assert od.increment == 0
+    # Not an autopilot: the layout that keeps ArduPilot's sectors whole (bin 0 at -20 deg),
+    # which any reader that follows the message definition understands.
     assert od.increment_f == 5.0
-    assert od.angle_offset == 0.0
+    assert od.angle_offset == -20.0
     assert od.frame == 12  # MAV_FRAME_BODY_FRD
     assert (od.min_distance, od.max_distance) == (20, 2000)
     assert 0 not in od.distances
     assert all(v == 65535 or 20 <= v <= 2001 for v in od.distances)
-    assert od.distances[36] == 65535  # behind the camera: nobody sees it
+    scan = read_bins(od.distances, od.increment_f, od.angle_offset)
+    assert scan[36] == 65535  # behind the camera: nobody sees it
+    assert od.distances[40] == 65535  # which is message bin 40 (180 deg = -20 + 40 * 5)
     assert abs(od.time_usec - time.monotonic_ns() // 1000) < 30_000_000
 
     heartbeat = peer.of_type("HEARTBEAT")[-1]
@@ -144,8 +150,14 @@ async def test_serial_link_over_a_pty(tmp_path: Path) -> None:
         os.close(slave)
 
 
-async def test_stale_pipeline_sends_unknown_critical_and_says_so(tmp_path: Path) -> None:
+@pytest.mark.parametrize("flavour", ["ardupilot", "px4"])
+async def test_stale_pipeline_says_unknown_as_each_autopilot_understands(
+    tmp_path: Path, flavour: str
+) -> None:
     # A recording of a few frames that ends: after it, avoidd has nothing it can vouch for.
+    # PX4 reads 65535 as "no data" and gets every bin unknown at the full rate; ArduPilot
+    # takes such a message for a healthy sensor with a clear view, so it gets nothing and
+    # reports "PRX1: No Data" itself. Both get a CRITICAL heartbeat and one STATUSTEXT.
     folder = tmp_path / "rec"
     (folder / "left").mkdir(parents=True)
     (folder / "right").mkdir()
@@ -159,48 +171,54 @@ async def test_stale_pipeline_sends_unknown_critical_and_says_so(tmp_path: Path)
         image = np.clip(cv2.GaussianBlur(noise, (0, 0), 1.5) * 3 - 256, 0, 255).astype(np.uint8)
         cv2.imwrite(str(folder / "left" / f"{i}.png"), image)
         cv2.imwrite(str(folder / "right" / f"{i}.png"), np.roll(image, -8, axis=1))
-    peer = await open_udp_peer()
+    port = free_udp_port()
+    autopilot = MockAutopilot(flavour=flavour, system_id=7)
+    await autopilot.start(f"udpin:127.0.0.1:{port}")
     config = synthetic_config(
         tmp_path,
-        f"udpout:127.0.0.1:{peer.port}",
+        f"udpout:127.0.0.1:{port}",
         source={"kind": "files", "path": str(folder), "fps": 10},
         pipeline={"max_age_ms": 200, "log_interval_s": 1.0},
     )
     daemon, task = await start_daemon(config)
     try:
         assert await wait_for(
-            lambda: any(min(m.distances) < 2001 for m in peer.of_type("OBSTACLE_DISTANCE")), 10.0
+            lambda: any(min(m.distances) < 2001 for m in autopilot.of_type("OBSTACLE_DISTANCE")),
+            10.0,
         ), "never received fresh data"
         assert await wait_for(
-            lambda: any("stale" in m.text for m in peer.of_type("STATUSTEXT")), 10.0
+            lambda: any("stale" in m.text for m in autopilot.of_type("STATUSTEXT")), 10.0
         )
-        t_stale = time.monotonic()
+        t_stale_ns = time.monotonic_ns()
         assert await wait_for(
             lambda: any(
-                r.t_s > t_stale + 1.2 for r in peer.messages if r.message.get_type() == "HEARTBEAT"
+                r.received_ns > t_stale_ns + 1_200_000_000
+                for r in autopilot.recorded
+                if r.message.get_type() == "HEARTBEAT"
             ),
             5.0,
         )
     finally:
         await stop_daemon(daemon, task)
-        peer.close()
-    texts = [m.text for m in peer.of_type("STATUSTEXT")]
+        await autopilot.stop()
+    texts = [m.text for m in autopilot.of_type("STATUSTEXT")]
     assert "avoidd: front source ended" in texts
     assert "avoidd: front stale, no avoidance" in texts
-    stale_severity = [m.severity for m in peer.of_type("STATUSTEXT") if "stale" in m.text]
+    stale_severity = [m.severity for m in autopilot.of_type("STATUSTEXT") if "stale" in m.text]
     assert stale_severity == [2]  # MAV_SEVERITY_CRITICAL, once
-    late = [r.message for r in peer.messages if r.t_s > t_stale + 0.2]
-    late_od = [m for m in late if m.get_type() == "OBSTACLE_DISTANCE"]
-    assert late_od and all(set(m.distances) == {65535} for m in late_od)
-    late_hb = [m for m in late if m.get_type() == "HEARTBEAT"]
+    late = [r for r in autopilot.recorded if r.received_ns > t_stale_ns + 200_000_000]
+    late_hb = [r.message for r in late if r.message.get_type() == "HEARTBEAT"]
     assert late_hb and all(m.system_status == 5 for m in late_hb)  # MAV_STATE_CRITICAL
-    # The rate does not drop when the data goes stale: the autopilot keeps hearing "unknown".
-    times = [
-        r.t_s
-        for r in peer.messages
-        if r.message.get_type() == "OBSTACLE_DISTANCE" and r.t_s > t_stale
-    ]
-    assert len(times) / (times[-1] - times[0]) > 12.0
+    late_od = [r for r in late if r.message.get_type() == "OBSTACLE_DISTANCE"]
+    if flavour == "ardupilot":
+        assert late_od == []
+        assert daemon.outputs.withheld > 10
+    else:
+        assert late_od and all(set(r.message.distances) == {65535} for r in late_od)
+        assert all(r.message.increment_f == 10.0 for r in late_od)  # PX4's layout
+        # The rate does not drop: PX4 keeps hearing "unknown" and never times out.
+        times = [r.received_ns / 1e9 for r in late_od]
+        assert len(times) / (times[-1] - times[0]) > 12.0
 
 
 @pytest.mark.parametrize("kind", ["udpout", "udpin"])

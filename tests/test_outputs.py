@@ -11,6 +11,7 @@ import pytest
 from avoidd.errors import ConfigError
 from avoidd.loading import load_all
 from avoidd.mavlink.codec import Codec
+from avoidd.mavlink.layout import read_bins
 from avoidd.mavlink.messages import (
     UNKNOWN_CM,
     DistanceSensorHead,
@@ -171,7 +172,13 @@ async def test_two_heads_merge_and_each_reports_its_distance_sensor(tmp_path: Pa
     # The box's front face is 2.2 m ahead; the pole's near side 1.9 m to the right.
     assert by_id[0].current_distance == pytest.approx(220, rel=0.04)
     assert by_id[1].current_distance == pytest.approx(190, rel=0.04)
-    merged = [m.distances for m in peer.of_type("OBSTACLE_DISTANCE") if m.distances[18] < 2000]
+    # The peer is no autopilot, so it gets DISTANCE_SENSOR (ArduPilot and PX4 would not:
+    # test_wire_layout) and the layout that starts at -20 degrees.
+    scans = [
+        read_bins(m.distances, m.increment_f, m.angle_offset)
+        for m in peer.of_type("OBSTACLE_DISTANCE")
+    ]
+    merged = [scan for scan in scans if scan[18] < 2000]
     assert merged, "the right head's pole never reached the merged array"
     last = merged[-1]
     assert last[0] == pytest.approx(220, rel=0.04) and last[18] == pytest.approx(190, rel=0.04)

@@ -95,12 +95,21 @@ class SigningConfig(Strict):
 class DistanceSensorConfig(Strict):
     """DISTANCE_SENSOR per head: its nearest obstacle, oriented by its mount.
 
-    A head's mount must point along one of the orientations DISTANCE_SENSOR can name: yaw a
-    multiple of 45 degrees with pitch 0, or straight up or down.
+    A head's mount must point along one of the orientations DISTANCE_SENSOR can name: yaw
+    within 2.5 degrees of a multiple of 45, pitch within 30 degrees of level.
+
+    Attributes:
+        enabled: Send it (to autopilots other than ArduPilot and PX4, or with the next key).
+        rate_hz: Messages per second per head.
+        alongside_obstacle_distance: Also send it to ArduPilot and PX4. Both take a horizontal
+            DISTANCE_SENSOR into the same proximity map as OBSTACLE_DISTANCE: ArduPilot keeps
+            whichever of the two wrote a 45-degree sector last, so they fight over it, and PX4
+            spreads the one reading over the head's whole field of view. Off by default.
     """
 
     enabled: bool = False
     rate_hz: float = Field(10.0, ge=1.0, le=50.0)
+    alongside_obstacle_distance: bool = False
 
 
 class ObstacleDistance3dConfig(Strict):

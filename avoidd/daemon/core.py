@@ -80,6 +80,8 @@ class Daemon:
         self._stop_threads = threading.Event()
         self._stopping = asyncio.Event()
         self.heads: list[Head] = []
+        self.outputs: Outputs | None = None
+        """The obstacle message senders, built when :meth:`run` starts."""
         mavlink = config.mavlink
         self.link = link if link is not None else build_link(mavlink)
         self.codec = self.link.codec
@@ -214,14 +216,14 @@ class Daemon:
 
     def _loops(self, announcer: Announcer) -> dict[str, Coroutine[Any, Any, None]]:
         """The long-running loops besides the heads' compute tasks, by task name."""
-        outputs = Outputs(
+        self.outputs = Outputs(
             self.config.mavlink,
             self.config.pipeline.max_age_ms,
             self.heads,
             self.link,
             self.vehicle,
         )
-        loops = outputs.loops()
+        loops = self.outputs.loops()
         loops["heartbeat"] = self._heartbeat_loop()
         loops["statustext"] = send_statustext(announcer, self.link, self._check_staleness)
         loops["log"] = log_every(

@@ -9,6 +9,8 @@ from typing import Any
 
 from avoidd.config import MavlinkConfig
 from avoidd.daemon.head import Head
+from avoidd.mavlink.codec import Message
+from avoidd.mavlink.layout import layout_for
 from avoidd.mavlink.link import MavLink
 from avoidd.mavlink.messages import (
     DistanceSensorHead,
@@ -16,6 +18,7 @@ from avoidd.mavlink.messages import (
     sectors_to_cm,
     unknown_cm,
 )
+from avoidd.mavlink.modes import ARDUPILOT, PX4
 from avoidd.mavlink.vehicle import Vehicle
 from avoidd.perception.sectors import merge_scans
 from avoidd.types import SectorScan
@@ -79,6 +82,9 @@ class Outputs:
         self.heads = heads
         self.link = link
         self.vehicle = vehicle
+        self.withheld = 0
+        """OBSTACLE_DISTANCE messages not sent for want of fresh data."""
+        self._last_usec = 0
         nearest_m = max((head.pipeline.min_range_m for head in heads), default=0.0)
         self.min_cm, self.max_cm = config.obstacle_distance.range_cm(nearest_m)
         """The range the messages claim: from what the least capable head can measure."""
@@ -97,23 +103,64 @@ class Outputs:
         loops["send"] = self.obstacle_distance()
         return loops
 
+    def autopilot(self) -> str | None:
+        """The autopilot on the link ("ArduPilot", "PX4", another), or None before it spoke."""
+        mode = self.vehicle.mode
+        return mode.autopilot if self.vehicle.link_up and mode is not None else None
+
+    def obstacle_distance_message(self, now_ns: int) -> Message | None:
+        """The OBSTACLE_DISTANCE to send now, or None when nothing should be sent.
+
+        With fresh data: the merged scan in the autopilot's layout (see
+        :mod:`avoidd.mavlink.layout`). Without any: all bins unknown for PX4, which reads
+        65535 as "no data"; nothing for ArduPilot, which takes a message of unknown bins as a
+        healthy sensor with a clear view (without messages it reports "PRX1: No Data" within
+        0.5 s and fails pre-arm); nothing either for an autopilot not yet heard from.
+        ``time_usec`` is the capture time on avoidd's monotonic clock, never going back
+        (ArduPilot and PX4 both time the data from its arrival and do not read it).
+        """
+        autopilot = self.autopilot()
+        layout = layout_for(autopilot)
+        scan = self.current_scan(now_ns)
+        if scan is None:
+            if autopilot != PX4:
+                self.withheld += 1
+                return None
+            distances, t_ns = unknown_cm(), now_ns
+        else:
+            distances, t_ns = sectors_to_cm(scan, self.min_cm, self.max_cm), scan.t_capture_ns
+        self._last_usec = max(self._last_usec, t_ns // 1000)
+        return self.link.codec.obstacle_distance(
+            self._last_usec,
+            layout.arrange(distances, self.max_cm),
+            self.min_cm,
+            self.max_cm,
+            layout.increment_deg,
+            layout.angle_offset_deg,
+        )
+
     async def obstacle_distance(self) -> None:
-        """Send OBSTACLE_DISTANCE at its rate: the merged scan, or all unknown when stale."""
-        od = self.config.obstacle_distance
-        codec = self.link.codec
+        """Send OBSTACLE_DISTANCE at its rate (see :meth:`obstacle_distance_message`)."""
 
         def send() -> None:
-            now_ns = time.monotonic_ns()
-            scan = self.current_scan(now_ns)
-            if scan is None:
-                distances = unknown_cm()
-                time_usec = self.vehicle.time_usec(now_ns)
-            else:
-                distances = sectors_to_cm(scan, self.min_cm, self.max_cm)
-                time_usec = self.vehicle.time_usec(scan.t_capture_ns)
-            self.link.send(codec.obstacle_distance(time_usec, distances, self.min_cm, self.max_cm))
+            message = self.obstacle_distance_message(time.monotonic_ns())
+            if message is not None:
+                self.link.send(message)
 
-        await every(od.rate_hz, send)
+        await every(self.config.obstacle_distance.rate_hz, send)
+
+    def sends_distance_sensor(self) -> bool:
+        """Whether DISTANCE_SENSOR goes to the autopilot on the link now.
+
+        ArduPilot and PX4 both put a horizontal DISTANCE_SENSOR into the same proximity map as
+        OBSTACLE_DISTANCE: ArduPilot keeps whichever message wrote a 45-degree sector last
+        (so the two fight over it), PX4 spreads the one reading over the sensor's whole field
+        of view. So they get it only with ``distance_sensor.alongside_obstacle_distance``;
+        other autopilots (and one not yet heard from) get it whenever it is enabled.
+        """
+        if self.autopilot() in (ARDUPILOT, PX4):
+            return self.config.distance_sensor.alongside_obstacle_distance
+        return True
 
     async def distance_sensor(self) -> None:
         """Send DISTANCE_SENSOR at its rate, one per fresh head (nothing for a stale one)."""
@@ -124,6 +171,8 @@ class Outputs:
         }
 
         def send() -> None:
+            if not self.sends_distance_sensor():
+                return
             now_ns = time.monotonic_ns()
             for head in self.heads:
                 scan = head.fresh_scan(now_ns, self.max_age_ns)

@@ -134,9 +134,18 @@ class Codec:
         )
 
     def obstacle_distance(
-        self, time_usec: int, distances_cm: list[int], min_cm: int, max_cm: int
+        self,
+        time_usec: int,
+        distances_cm: list[int],
+        min_cm: int,
+        max_cm: int,
+        increment_deg: float = 5.0,
+        angle_offset_deg: float = 0.0,
     ) -> Message:
-        """An OBSTACLE_DISTANCE of 72 bins of 5 degrees, bin 0 centred ahead, BODY_FRD."""
+        """An OBSTACLE_DISTANCE in BODY_FRD: 72 values, bin ``j`` at ``offset + j * increment``.
+
+        ``increment`` (the integer field) is 0, so readers take ``increment_f``.
+        """
         return self._mav.obstacle_distance_encode(
             time_usec,
             MAV_DISTANCE_SENSOR_UNKNOWN,
@@ -144,8 +153,8 @@ class Codec:
             0,
             min_cm,
             max_cm,
-            5.0,
-            0.0,
+            increment_deg,
+            angle_offset_deg,
             MAV_FRAME_BODY_FRD,
         )
 
