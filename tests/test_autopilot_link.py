@@ -184,6 +184,42 @@ async def test_refused_and_unanswered_stream_requests(tmp_path: Path) -> None:
         await autopilot.stop()
 
 
+async def test_a_quick_reboot_within_the_link_timeout_gets_the_streams_back(
+    tmp_path: Path,
+) -> None:
+    # The heartbeat never stops long enough for the link to go down, so only the requested
+    # streams falling silent (and the boot clock going back) show the reboot.
+    autopilot = MockAutopilot(system_id=7)
+    daemon, task = await udp_pair(tmp_path, autopilot, link_timeout_s=3.0)
+    try:
+        vehicle = daemon.vehicle
+        assert await wait_for(lambda: vehicle.link_up and vehicle.streams_acknowledged, 10.0)
+        assert await wait_for(lambda: len(vehicle.attitude) > 20, 5.0)
+        requests_before = sum(int(m.param1) == 30 for m in autopilot.of_type("COMMAND_LONG"))
+        rebooted_ns = time.monotonic_ns()
+        autopilot.reboot()
+        assert await wait_for(lambda: vehicle.reboots == 1, 3.0)
+        assert vehicle.link_up  # it never went down
+        # ATTITUDE flows again, and what avoidd knows is from after the reboot.
+        assert await wait_for(
+            lambda: (
+                vehicle.streams_acknowledged
+                and vehicle.attitude_at(time.monotonic_ns() - 20_000_000) is not None
+            ),
+            3.0,
+        )
+        back_s = (time.monotonic_ns() - rebooted_ns) / 1e9
+        requests_after = sum(int(m.param1) == 30 for m in autopilot.of_type("COMMAND_LONG"))
+        assert requests_after > requests_before
+        texts = [m.text for m in autopilot.of_type("STATUSTEXT")]
+        assert "avoidd: autopilot rebooted" in texts
+        print(f"streams back {back_s:.2f} s after the reboot")
+        assert back_s < 3.0
+    finally:
+        await stop(daemon, task)
+        await autopilot.stop()
+
+
 async def test_link_down_and_up_are_reported(tmp_path: Path) -> None:
     autopilot = MockAutopilot(system_id=7)
     daemon, task = await udp_pair(tmp_path, autopilot, link_timeout_s=1.0)

@@ -1,4 +1,4 @@
-"""Mapping avoidd's monotonic clock to the autopilot's boot clock and to its UTC time.
+"""Mapping avoidd's monotonic clock to the autopilot's boot clock, and seeing it reboot.
 
 The autopilot stamps ATTITUDE, SYSTEM_TIME and others with ``time_boot_ms``. A message is received
 some unknown, non-negative delay after it was stamped, so each one gives a lower bound of the
@@ -12,7 +12,8 @@ from __future__ import annotations
 from collections import deque
 
 _WINDOW_NS = 60_000_000_000
-_UTC_VALID_AFTER_US = 1_546_300_800_000_000  # 2019-01-01: older "UTC" means no real clock
+_REBOOT_NS = 1_000_000_000
+"""A boot clock that runs this far behind the estimate started over: the autopilot rebooted."""
 
 
 class ClockSync:
@@ -21,7 +22,6 @@ class ClockSync:
     def __init__(self) -> None:
         self._bounds: deque[tuple[int, int]] = deque()  # (local receive ns, offset bound ns)
         self._offset_ns: int | None = None
-        self._utc_minus_boot_us: int | None = None
 
     @property
     def synced(self) -> bool:
@@ -33,25 +33,24 @@ class ClockSync:
         """Autopilot boot time minus local monotonic time, in ns (None until synced)."""
         return self._offset_ns
 
-    def observe_boot_ms(self, time_boot_ms: int, received_ns: int) -> None:
-        """Take one autopilot ``time_boot_ms`` stamp received at local monotonic ``received_ns``."""
+    def observe_boot_ms(self, time_boot_ms: int, received_ns: int) -> bool:
+        """Take one autopilot ``time_boot_ms`` stamp received at local monotonic ``received_ns``.
+
+        Returns:
+            True when the stamp shows the autopilot rebooted (its boot clock went back by more
+            than a second, which no delay in transit explains); the estimate starts over.
+        """
         bound = time_boot_ms * 1_000_000 - received_ns
-        if self._offset_ns is not None and bound < self._offset_ns - 10_000_000_000:
-            # The autopilot rebooted (its clock went back by more than 10 s): start over.
+        rebooted = self._offset_ns is not None and bound < self._offset_ns - _REBOOT_NS
+        if rebooted:
             self._bounds.clear()
-            self._utc_minus_boot_us = None
         while self._bounds and self._bounds[-1][1] <= bound:
             self._bounds.pop()
         self._bounds.append((received_ns, bound))
         while self._bounds and received_ns - self._bounds[0][0] > _WINDOW_NS:
             self._bounds.popleft()
         self._offset_ns = self._bounds[0][1]
-
-    def observe_system_time(self, time_unix_usec: int, time_boot_ms: int, received_ns: int) -> None:
-        """Take a SYSTEM_TIME: its boot stamp, and its UTC time when the autopilot has one."""
-        self.observe_boot_ms(time_boot_ms, received_ns)
-        if time_unix_usec >= _UTC_VALID_AFTER_US:
-            self._utc_minus_boot_us = time_unix_usec - time_boot_ms * 1000
+        return rebooted
 
     def to_autopilot_boot_ns(self, local_ns: int) -> int | None:
         """A local monotonic time on the autopilot's boot clock (None until synced)."""
@@ -64,18 +63,3 @@ class ClockSync:
         if self._offset_ns is None:
             return None
         return int(time_boot_ms * 1_000_000) - self._offset_ns
-
-    def time_usec(self, local_ns: int) -> int:
-        """The ``time_usec`` to put in a message about something that happened at ``local_ns``.
-
-        UTC on the autopilot's own clock when it has one, which ArduPilot converts back to its
-        boot time to age the data; else time since the autopilot booted; else (not synced yet)
-        time since the companion booted. PX4 stamps OBSTACLE_DISTANCE on receipt, and ArduPilot
-        falls back to its receipt time for values that are not UTC, so the last two are safe.
-        """
-        boot_ns = self.to_autopilot_boot_ns(local_ns)
-        if boot_ns is None:
-            return max(local_ns // 1000, 0)
-        if self._utc_minus_boot_us is not None:
-            return boot_ns // 1000 + self._utc_minus_boot_us
-        return max(boot_ns // 1000, 0)

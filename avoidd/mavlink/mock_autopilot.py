@@ -273,6 +273,16 @@ class MockAutopilot:
                 )
             )
 
+    def reboot(self) -> None:
+        """Reboot at once, as ArduPilot SITL does in under 3 s.
+
+        The boot clock starts over and every requested stream is forgotten (the fixed ones
+        stay).
+        """
+        self.boot_ns = time.monotonic_ns()
+        fixed = {mav.message_id(name) for name in self.fixed_streams}
+        self.streams = {k: v for k, v in self.streams.items() if k in fixed}
+
     # --- running -----------------------------------------------------------------------------
 
     async def start(self, connection: str) -> None:

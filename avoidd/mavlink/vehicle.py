@@ -26,6 +26,9 @@ logger = logging.getLogger(__name__)
 
 DEFAULT_SYSTEM_ID = 1
 _REQUEST_RETRY_S = 1.0
+_SILENT_MIN_NS = 1_000_000_000
+"""An accepted stream silent for this long (or three intervals) is asked for again: an
+autopilot that rebooted within the link timeout has forgotten every request."""
 _NOT_AUTOPILOTS = {mav.MAV_TYPE_GCS, mav.MAV_TYPE_ONBOARD_CONTROLLER}
 
 
@@ -59,7 +62,19 @@ class Rangefinder:
 
 @dataclass
 class StreamRequest:
-    """One message stream avoidd asks for."""
+    """One message stream avoidd asks for.
+
+    Attributes:
+        name: Message name.
+        msg_id: Message id.
+        interval_us: Interval asked for.
+        acked: The autopilot accepted the request (since the link came up or the last
+            re-request).
+        refused: The autopilot refused it.
+        attempts: Requests sent since the last answer.
+        acked_ns: When it was accepted (local monotonic).
+        last_ns: When the last message of the stream arrived.
+    """
 
     name: str
     msg_id: int
@@ -67,6 +82,12 @@ class StreamRequest:
     acked: bool = False
     refused: bool = False
     attempts: int = 0
+    acked_ns: int = 0
+    last_ns: int = 0
+
+    def silent_ns(self) -> int:
+        """How long it may stay silent once accepted before it is asked for again."""
+        return max(_SILENT_MIN_NS, 3 * self.interval_us * 1000)
 
 
 class Vehicle:
@@ -92,6 +113,10 @@ class Vehicle:
         self.position: LocalPosition | None = None
         self.rangefinder: Rangefinder | None = None
         self.ignored: Counter[int] = Counter()
+        self.reboots = 0
+        """Autopilot reboots seen (boot clock going back, or every stream silent)."""
+        self.silent_streams = 0
+        """Streams asked for again after going silent."""
         self.invalid: Counter[str] = Counter()
         """Messages dropped because a value was not a finite number, by type."""
         self.requests = [
@@ -126,6 +151,9 @@ class Vehicle:
             return
         if message.get_srcComponent() != self.component_id:
             return
+        for request in self.requests:
+            if request.name == kind:
+                request.last_ns = received_ns
         handler = getattr(self, f"_on_{kind.lower()}", None)
         if handler is not None:
             handler(message, received_ns)
@@ -171,7 +199,7 @@ class Vehicle:
         if not all(math.isfinite(v) for v in (message.roll, message.pitch, message.yaw)):
             self.invalid["ATTITUDE"] += 1  # an attitude that is not a number is no attitude
             return
-        self.clock.observe_boot_ms(message.time_boot_ms, received_ns)
+        self._observe_boot_ms(message.time_boot_ms, received_ns)
         t_ns = self.clock.to_local_ns(message.time_boot_ms)
         assert t_ns is not None
         self.attitude.add(Attitude(t_ns, message.roll, message.pitch, message.yaw))
@@ -181,7 +209,7 @@ class Vehicle:
         if not all(math.isfinite(v) for v in (m.x, m.y, m.z, m.vx, m.vy, m.vz)):
             self.invalid["LOCAL_POSITION_NED"] += 1
             return
-        self.clock.observe_boot_ms(message.time_boot_ms, received_ns)
+        self._observe_boot_ms(message.time_boot_ms, received_ns)
         t_ns = self.clock.to_local_ns(message.time_boot_ms)
         assert t_ns is not None
         m = message
@@ -190,14 +218,14 @@ class Vehicle:
     def _on_distance_sensor(self, message: mav.Message, received_ns: int) -> None:
         if message.orientation != mav.MAV_SENSOR_ROTATION_PITCH_270:
             return
-        self.clock.observe_boot_ms(message.time_boot_ms, received_ns)
+        self._observe_boot_ms(message.time_boot_ms, received_ns)
         t_ns = self.clock.to_local_ns(message.time_boot_ms)
         assert t_ns is not None
         if message.min_distance <= message.current_distance <= message.max_distance:
             self.rangefinder = Rangefinder(t_ns, message.current_distance / 100.0)
 
     def _on_system_time(self, message: mav.Message, received_ns: int) -> None:
-        self.clock.observe_system_time(message.time_unix_usec, message.time_boot_ms, received_ns)
+        self._observe_boot_ms(message.time_boot_ms, received_ns)
 
     def _on_command_ack(self, message: mav.Message, received_ns: int) -> None:
         request = self._pending
@@ -208,6 +236,7 @@ class Vehicle:
         self._pending = None
         if message.result == mav.MAV_RESULT_ACCEPTED:
             request.acked = True
+            request.acked_ns = received_ns
             logger.info(
                 "vehicle %d: streams %s every %d us",
                 self.system_id,
@@ -228,10 +257,6 @@ class Vehicle:
     def attitude_at(self, t_ns: int) -> Attitude | None:
         """Vehicle attitude at a local monotonic time (None when not known well enough)."""
         return self.attitude.at(t_ns)
-
-    def time_usec(self, local_ns: int) -> int:
-        """``time_usec`` for a message about an event at ``local_ns`` (see :class:`ClockSync`)."""
-        return self.clock.time_usec(local_ns)
 
     def time_boot_ms(self, local_ns: int) -> int:
         """``time_boot_ms`` for a message about an event at ``local_ns``.
@@ -263,7 +288,47 @@ class Vehicle:
             )
             self._announce(mav.MAV_SEVERITY_WARNING, "avoidd: link down", "link")
         if self.link_up:
+            self._check_silent_streams(now_ns)
             self._request_streams(now_ns / 1e9)
+
+    def _observe_boot_ms(self, time_boot_ms: int, received_ns: int) -> None:
+        if self.clock.observe_boot_ms(time_boot_ms, received_ns):
+            self._restart("its boot clock went back")
+
+    def _restart(self, why: str) -> None:
+        """The autopilot rebooted: forget its state and ask for every stream again."""
+        self.reboots += 1
+        self.attitude.clear()
+        self.position = None
+        self.rangefinder = None
+        for request in self.requests:
+            request.acked = request.refused = False
+            request.attempts = 0
+        self._pending = None
+        logger.warning(
+            "vehicle %s rebooted (%s); asking for its streams again", self.system_id, why
+        )
+        self._announce(mav.MAV_SEVERITY_WARNING, "avoidd: autopilot rebooted", "autopilot")
+
+    def _check_silent_streams(self, now_ns: int) -> None:
+        """Ask again for accepted streams that went silent (an autopilot that rebooted)."""
+        # Only streams that delivered since they were accepted: an autopilot may accept a
+        # stream it has nothing for (DISTANCE_SENSOR without a rangefinder).
+        delivering = [r for r in self.requests if r.acked and r.last_ns >= r.acked_ns]
+        silent = [r for r in delivering if now_ns - r.last_ns > r.silent_ns()]
+        if silent and len(silent) == len(delivering):
+            self._restart(f"{', '.join(r.name for r in silent)} stopped")
+            return
+        for request in silent:
+            request.acked = False
+            request.attempts = 0
+            self.silent_streams += 1
+            logger.warning(
+                "vehicle %s: %s went silent for %.1f s; asking again",
+                self.system_id,
+                request.name,
+                (now_ns - max(request.last_ns, request.acked_ns)) / 1e9,
+            )
 
     def _request_streams(self, now_s: float) -> None:
         if self._pending is not None and now_s - self._pending_sent_s < _REQUEST_RETRY_S:
