@@ -1,15 +1,15 @@
-"""The daemon's pure health rules: boot grace, stale heads, HEARTBEAT state, transitions."""
+"""The daemon's pure health rules: boot grace, stale heads, HEARTBEAT state, reporting."""
 
 from __future__ import annotations
 
 from avoidd.daemon.health import (
     BOOT_GRACE_NS,
-    Transition,
+    Reported,
     in_boot_grace,
     is_fresh,
     mav_state,
     stale_heads,
-    transitions,
+    stale_reason,
 )
 from avoidd.mavlink import codec as mav
 
@@ -54,38 +54,37 @@ def test_one_stale_head_among_fresh_ones_is_critical() -> None:
     assert mav_state(frozenset()) == mav.MAV_STATE_ACTIVE
 
 
-def test_transitions_both_ways_stale_first_then_by_name() -> None:
-    assert transitions(set(), set()) == []
-    assert transitions({"front"}, {"front"}) == []
-    assert transitions(set(), {"rear", "front"}) == [
-        Transition("front", stale=True),
-        Transition("rear", stale=True),
-    ]
-    assert transitions({"front", "rear"}, set()) == [
-        Transition("front", stale=False),
-        Transition("rear", stale=False),
-    ]
-    assert transitions({"front"}, {"rear"}) == [
-        Transition("rear", stale=True),
-        Transition("front", stale=False),
-    ]
+def _report(stale_at: list[bool], step_ms: int = 50) -> list[tuple[int, bool]]:
+    """Feed one head's raw freshness every ``step_ms``; the changes reported, with their step."""
+    state = Reported()
+    changes = []
+    for step, stale in enumerate(stale_at):
+        change = state.update(stale, STARTED_NS + step * step_ms * MS)
+        if change is not None:
+            changes.append((step, change))
+    return changes
 
 
-def test_a_head_going_stale_and_recovering_over_time() -> None:
-    """The check the daemon runs: stale set at each time, transitions between checks."""
-    latest: dict[str, int | None] = {"front": None, "rear": None}
-    seen: list[Transition] = []
-    previous: frozenset[str] = frozenset()
-    for step in range(100):
-        now_ns = STARTED_NS + step * 100 * MS
-        if step >= 3:
-            latest["front"] = now_ns - 20 * MS
-        if 3 <= step < 40 or step >= 60:
-            latest["rear"] = now_ns - 20 * MS
-        stale = stale_heads(latest, STARTED_NS, now_ns, MAX_AGE_NS)
-        if stale is None:
-            continue
-        seen += transitions(previous, stale)
-        previous = stale
-    # rear's last frame is at step 39: stale once it is older than 300 ms (step 43), back at 60.
-    assert seen == [Transition("rear", stale=True), Transition("rear", stale=False)]
+def test_a_short_miss_is_not_reported_a_lasting_one_is_once() -> None:
+    # 300 ms stale (a late frame under load): nothing reported.
+    assert _report([False] * 10 + [True] * 6 + [False] * 50) == []
+    # Stale for 2 s: reported once, after 0.5 s; recovered after 2 s of fresh data.
+    changes = _report([False] * 10 + [True] * 40 + [False] * 50)
+    assert changes == [(20, True), (90, False)]
+
+
+def test_flapping_under_load_is_one_episode() -> None:
+    # Stale 0.6 s, fresh 0.5 s, over and over for 10 s (the demo under CPU load): reported
+    # stale once, and fresh again only once the data stays fresh for 2 s.
+    pattern = ([True] * 12 + [False] * 10) * 9
+    changes = _report(pattern + [False] * 60)
+    assert [change for _, change in changes] == [True, False]
+    assert changes[1][0] == len(pattern) - 10 + 40  # 2 s after the last stale sample
+
+
+def test_the_reason_names_where_the_time_went() -> None:
+    now_ns = STARTED_NS + 10_000 * MS
+    assert stale_reason(now_ns, None, None, MAX_AGE_NS) == "camera lost"
+    assert stale_reason(now_ns, now_ns - 2_000 * MS, 10 * MS, MAX_AGE_NS) == "camera lost"
+    assert stale_reason(now_ns, now_ns - 10 * MS, 500 * MS, MAX_AGE_NS) == "frames late"
+    assert stale_reason(now_ns, now_ns - 10 * MS, 20 * MS, MAX_AGE_NS) == "compute late"

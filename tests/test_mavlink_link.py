@@ -203,7 +203,7 @@ async def test_stale_pipeline_says_unknown_as_each_autopilot_understands(
         await autopilot.stop()
     texts = [m.text for m in autopilot.of_type("STATUSTEXT")]
     assert "avoidd: front source ended" in texts
-    assert "avoidd: front stale, no avoidance" in texts
+    assert "avoidd: front stale, camera lost" in texts
     stale_severity = [m.severity for m in autopilot.of_type("STATUSTEXT") if "stale" in m.text]
     assert stale_severity == [2]  # MAV_SEVERITY_CRITICAL, once
     late = [r for r in autopilot.recorded if r.received_ns > t_stale_ns + 200_000_000]

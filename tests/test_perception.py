@@ -291,12 +291,18 @@ def test_pose_comes_from_the_best_source() -> None:
     fresh = Rangefinder(1_000, 2.0)
     stale = Rangefinder(1_000 - 10**9, 2.0)
     position = LocalPosition(1_000, 0, 0, -7.0, 0, 0, 0)
-    pose = resolve_pose(1_000, recorded, attitude, fresh, position, CONFIG)
+    # A live frame: the autopilot's attitude and rangefinder.
+    pose = resolve_pose(1_000, None, attitude, fresh, position, CONFIG)
     assert (pose.roll_deg, pose.pitch_deg) == pytest.approx((5.0, -4.0))
     assert pose.source == "mavlink" and pose.height_source == "rangefinder"
     assert pose.height_m == pytest.approx(height_from_rangefinder(2.0, 5.0, -4.0))
-    pose = resolve_pose(1_000, recorded, None, stale, position, CONFIG)
-    assert pose == recorded
+    # A frame that carries its pose was taken in it, whatever the autopilot says now.
+    assert resolve_pose(1_000, recorded, attitude, fresh, position, CONFIG) == recorded
+    assert resolve_pose(1_000, recorded, None, stale, position, CONFIG) == recorded
+    # Without a recorded height, the live chain gives the height.
+    no_height = FramePose(1.0, 2.0, math.nan, "recording", "none")
+    pose = resolve_pose(1_000, no_height, attitude, fresh, position, CONFIG)
+    assert (pose.roll_deg, pose.source, pose.height_source) == (1.0, "recording", "rangefinder")
     altitude = CONFIG.model_copy(
         update={"ground": CONFIG.ground.model_copy(update={"use_altitude": True})}
     )

@@ -97,7 +97,7 @@ class Daemon:
         self._announcer: Announcer | None = None
         self.vehicle = Vehicle(self.link, mavlink, self.announce)
         self._max_age_ns = config.pipeline.max_age_ms * 1_000_000
-        self._stale: frozenset[str] = frozenset()
+        self._reported: dict[str, health.Reported] = {}
         self._started_ns = 0
 
     @property
@@ -243,28 +243,39 @@ class Daemon:
     async def _heartbeat_loop(self) -> None:
         period_s = 1.0 / self.config.mavlink.heartbeat_hz
         while True:
-            state = health.mav_state(self._stale_heads(time.monotonic_ns()))
-            self.link.send(self.codec.heartbeat(state))
+            self.link.send(self.codec.heartbeat(health.mav_state(self.reported_stale())))
             await asyncio.sleep(period_s)
 
+    def reported_stale(self) -> frozenset[str] | None:
+        """Heads reported stale (with hysteresis, see :class:`.health.Reported`), None at boot."""
+        if self._stale_heads(time.monotonic_ns()) is None:
+            return None
+        return frozenset(name for name, state in self._reported.items() if state.stale)
+
     def _check_staleness(self) -> None:
-        """Log and announce heads that went stale or recovered since the last check."""
-        stale = self._stale_heads(time.monotonic_ns())
+        """Report heads that went stale or recovered (with hysteresis), saying why."""
+        now_ns = time.monotonic_ns()
+        stale = self._stale_heads(now_ns)
         if stale is None:
             return
-        for change in health.transitions(self._stale, stale):
-            name = change.head
-            if change.stale:
-                logger.error("head '%s': data stale; sending unknown for its sectors", name)
+        for head in self.heads:
+            change = self._reported.setdefault(head.name, health.Reported()).update(
+                head.name in stale, now_ns
+            )
+            if change is None:
+                continue
+            name = head.name
+            if change:
+                why = health.stale_reason(
+                    now_ns, head.last_frame_ns, head.arrival_age_ns, self._max_age_ns
+                )
+                logger.error("head '%s': data stale (%s); its sectors are unknown", name, why)
                 self.announce(
-                    mav.MAV_SEVERITY_CRITICAL,
-                    f"avoidd: {name} stale, no avoidance",
-                    f"fresh {name}",
+                    mav.MAV_SEVERITY_CRITICAL, f"avoidd: {name} stale, {why}", f"fresh {name}"
                 )
             else:
                 logger.warning("head '%s': data fresh again", name)
                 self.announce(mav.MAV_SEVERITY_NOTICE, f"avoidd: {name} recovered", f"fresh {name}")
-        self._stale = stale
 
     async def _signing_loop(self) -> None:
         while True:

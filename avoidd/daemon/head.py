@@ -94,6 +94,10 @@ class Head:
         self.latest_scan: SectorScan | None = None
         self.stats = HeadStats()
         self.ended = False
+        self.last_frame_ns: int | None = None
+        """When the source last delivered a frame (local monotonic)."""
+        self.arrival_age_ns: int | None = None
+        """How old that frame was when it arrived (its capture time to delivery)."""
         self._stop = stop
         self._announce = announce
         self._thread = threading.Thread(target=self._capture, name=f"capture-{self.name}")
@@ -187,6 +191,9 @@ class Head:
                 backoff_s = min(backoff_s * 2, high_s)
                 continue
             self.stats.captured += 1
+            arrived_ns = time.monotonic_ns()
+            self.arrival_age_ns = arrived_ns - frame.t_capture_ns
+            self.last_frame_ns = arrived_ns
             self.slot.put(frame)
         if source is not None:
             with contextlib.suppress(Exception):

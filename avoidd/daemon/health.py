@@ -1,4 +1,4 @@
-"""Pure health rules over the heads' freshness: boot grace, stale set, HEARTBEAT state, changes.
+"""Pure health rules over the heads' freshness: boot grace, stale set, HEARTBEAT, reporting.
 
 Nothing here reads a clock or does I/O: every function takes the capture time of each head's
 newest processed frame (None before its first) and ``now_ns`` on the same monotonic clock.
@@ -13,6 +13,10 @@ from avoidd.mavlink import codec as mav
 
 BOOT_GRACE_NS = 5_000_000_000
 """After start, how long heads that have produced nothing yet count as booting, not stale."""
+ENTER_STALE_NS = 500_000_000
+"""A head is reported stale once its data has been too old for this long without a break."""
+LEAVE_STALE_NS = 2_000_000_000
+"""A stale head is reported fresh again once its data has been fresh this long throughout."""
 
 
 def is_fresh(t_capture_ns: int | None, now_ns: int, max_age_ns: int) -> bool:
@@ -82,29 +86,61 @@ def mav_state(stale: Set[str] | None) -> int:
     return mav.MAV_STATE_CRITICAL if stale else mav.MAV_STATE_ACTIVE
 
 
-@dataclass(frozen=True)
-class Transition:
-    """A head's freshness changed.
+@dataclass
+class Reported:
+    """What has been reported about one head: stale or fresh, and since when it disagrees.
 
-    Attributes:
-        head: The head's name.
-        stale: True if it went stale, False if it recovered.
+    The data sent is never older than ``max_age_ms``, frame by frame; what is *reported*
+    (STATUSTEXT, the HEARTBEAT state) follows with hysteresis, so that a head that misses its
+    deadline now and then under load is reported once, not every time (12 stale announcements
+    in 44 s were seen, half CRITICAL, which ground stations read aloud).
     """
 
-    head: str
-    stale: bool
+    stale: bool = False
+    differs_since_ns: int | None = None
+
+    def update(self, stale_now: bool, now_ns: int) -> bool | None:
+        """Take the head's freshness at ``now_ns``.
+
+        Args:
+            stale_now: Whether its data is too old right now.
+            now_ns: The current time.
+
+        Returns:
+            The new reported state when it changes (True: went stale, False: recovered),
+            else None.
+        """
+        if stale_now == self.stale:
+            self.differs_since_ns = None
+            return None
+        if self.differs_since_ns is None:
+            self.differs_since_ns = now_ns
+        hold_ns = ENTER_STALE_NS if stale_now else LEAVE_STALE_NS
+        if now_ns - self.differs_since_ns < hold_ns:
+            return None
+        self.stale = stale_now
+        self.differs_since_ns = None
+        return stale_now
 
 
-def transitions(before: Set[str], after: Set[str]) -> list[Transition]:
-    """What changed between two stale sets: heads that went stale, then heads that recovered.
+def stale_reason(
+    now_ns: int, last_frame_ns: int | None, arrival_age_ns: int | None, max_age_ns: int
+) -> str:
+    """Why a head's data is too old, for the operator.
 
     Args:
-        before: The stale heads at the previous check.
-        after: The stale heads now.
+        now_ns: The current time.
+        last_frame_ns: When its source last delivered a frame (local time), None if never.
+        arrival_age_ns: How old that frame already was when it arrived.
+        max_age_ns: The age limit.
 
     Returns:
-        One transition per changed head, those that went stale first, each group by name.
+        "camera lost" (no frames arrive), "frames late" (they arrive already too old: the
+        camera or its driver is slow) or "compute late" (they arrive in time but their results
+        do not: the machine cannot keep up).
     """
-    went_stale = [Transition(name, stale=True) for name in sorted(after - before)]
-    recovered = [Transition(name, stale=False) for name in sorted(before - after)]
-    return went_stale + recovered
+    if last_frame_ns is None or now_ns - last_frame_ns > max_age_ns:
+        return "camera lost"
+    if arrival_age_ns is not None and arrival_age_ns > max_age_ns:
+        return "frames late"
+    return "compute late"
