@@ -24,11 +24,13 @@ from avoidd.types import (
 )
 from avoidd.vision.calibration import Calibration
 from avoidd.vision.depth import depth_from_disparity
+from avoidd.vision.edges import fattened_pixels, hidden_from_right, short_occlusion_gaps
 from avoidd.vision.matchers import create_matcher
 from avoidd.vision.nearfield import NearField, min_range_m
 from avoidd.vision.postprocess import (
     fill_holes,
     median_smooth,
+    noise_sigma,
     refine_subpixel,
     remove_speckles,
     texture_gate,
@@ -135,7 +137,7 @@ class HeadPipeline:
         self._min_range_m = min_range_m(
             self.work_rig, head.matcher.num_disparities, head.near_field
         )
-        self._sectors = head.sectors
+        self.sectors = head.sectors
         self._histogram = head.histogram
         self._max_range_m = max_range_m
         self.perception = perception or PerceptionConfig()
@@ -224,6 +226,19 @@ class HeadPipeline:
             disparity = refine_subpixel(left, right, disparity, post.refine_window_px)
         disparity = median_smooth(disparity, post.median_size)
         disparity = remove_speckles(disparity, post.speckle_window_px, post.speckle_range_px)
+        if post.edge_radius_px:
+            disparity[hidden_from_right(disparity)] = np.nan
+            short = short_occlusion_gaps(disparity, post.edge_jump_px, 2 * post.edge_radius_px)
+            disparity[short] = np.nan
+            fattened = fattened_pixels(
+                left,
+                right,
+                disparity,
+                post.edge_radius_px,
+                post.edge_jump_px,
+                noise_sigma(left),
+            )
+            disparity[fattened] = np.nan  # background that took the silhouette's disparity
         if texture is not None:
             disparity[~texture] = np.nan  # untextured: not measured, never guessed
         textured = texture
@@ -256,7 +271,7 @@ class HeadPipeline:
             self.mount,
             pose or self.default_pose(frame),
             self.perception,
-            self._sectors,
+            self.sectors,
             self._histogram,
             self._max_range_m,
             frame.t_capture_ns,

@@ -7,6 +7,8 @@ import json
 from pathlib import Path
 
 from avoidd.commands import EXIT_OK
+from avoidd.evaluation.edges import edge_suite, format_edges, run_edge_case
+from avoidd.evaluation.near import format_near, near_suite, run_near_case
 from avoidd.evaluation.run import evaluate, format_runs
 from avoidd.evaluation.scenes import contact_suite, run_suite, suite
 
@@ -32,6 +34,12 @@ def configure(name: str, parser: argparse.ArgumentParser) -> None:
         parser.add_argument(
             "--contact-scenes", type=int, default=12, help="roll-free contact scenes"
         )
+        parser.add_argument(
+            "--near-scenes", type=int, default=24, help="walls, boxes, poles at 0.3-1.2 m"
+        )
+        parser.add_argument(
+            "--edge-scenes", type=int, default=24, help="silhouettes across bin boundaries"
+        )
         parser.set_defaults(handler=run_eval_perception)
 
 
@@ -47,7 +55,13 @@ def run_eval(args: argparse.Namespace) -> int:
 
 
 def run_eval_perception(args: argparse.Namespace) -> int:
-    """Score perception on the rendered suites and print the summary."""
+    """Score perception on the rendered suites and print the summaries."""
     summary = run_suite(suite(args.scenes, args.seed) + contact_suite(args.contact_scenes))
     print(summary.format())
+    if args.near_scenes:
+        print()
+        print(format_near([run_near_case(c) for c in near_suite(args.near_scenes)]))
+    if args.edge_scenes:
+        print()
+        print(format_edges([run_edge_case(c) for c in edge_suite(args.edge_scenes)]))
     return EXIT_OK

@@ -273,6 +273,10 @@ class PostprocessConfig(Strict):
             deviation over ``texture_window_px``) is below this multiple of the frame's
             sensor noise: a match in sky or on a blank wall is a guess (0: off).
         texture_window_px: Window of that test (odd).
+        edge_radius_px: Check for foreground fattening this far from each depth edge (see
+            ``avoidd.vision.edges``): a pixel there keeps the near disparity only if its own
+            grey level matches the right view better at it than at the far one (0: off).
+        edge_jump_px: Smallest disparity step that counts as a depth edge.
     """
 
     subpixel_refine: bool = False
@@ -283,6 +287,8 @@ class PostprocessConfig(Strict):
     fill_holes: bool = False
     min_texture_snr: float = Field(1.5, ge=0.0, le=20.0)
     texture_window_px: Annotated[int, Field(ge=3, le=31), AfterValidator(_odd)] = 7
+    edge_radius_px: int = Field(8, ge=0, le=16)
+    edge_jump_px: float = Field(2.0, gt=0.0, le=64.0)
 
     @field_validator("refine_window_px")
     @classmethod

@@ -120,7 +120,11 @@ def run_near_case(case: SceneCase, noise_std: float = 1.5) -> NearResult:
         _head(case), Calibration(case.rig, None, Path("near")), _MAX_RANGE_M, perception
     )
     result = pipeline.process(frame)
-    occupied = truth_bins(rendered.truth, pipeline.mount, case.pose, perception)
+    # Bins where the obstacle covers at least the smallest object the sensor promises to see
+    # (sectors.min_size_m, a 5 cm square at its distance): a corner of a box a few pixels
+    # wide in a bin is below that, and is reported in the bin that holds the box.
+    resolvable_px = case.rig.fx * pipeline.sectors.min_size_m
+    occupied = truth_bins(rendered.truth, pipeline.mount, case.pose, perception, resolvable_px)
     nearest = result.scan.nearest()
     verdict = NearResult(
         case.name,

@@ -193,9 +193,23 @@ def run_case(case: SceneCase, noise_std: float = 1.5) -> SceneResult:
 
 
 def truth_bins(
-    truth: Any, mount: Mount, pose: FramePose, perception: PerceptionConfig
+    truth: Any,
+    mount: Mount,
+    pose: FramePose,
+    perception: PerceptionConfig,
+    resolvable_px: float = 0.0,
 ) -> dict[int, float]:
-    """Exact nearest obstacle distance of every bin an obstacle occupies (in band, in range)."""
+    """Exact nearest obstacle distance of every bin an obstacle occupies (in band, in range).
+
+    Args:
+        truth: The rendered ground truth of the left view.
+        mount: The head's mount.
+        pose: The vehicle pose it was rendered with.
+        perception: Ground margin and height band.
+        resolvable_px: ``f * s`` for the smallest obstacle side ``s`` the sensor promises to
+            see: a bin counts only if its obstacle pixels cover that square at their distance
+            (``(f s / Z)**2`` pixels); 0 counts every pixel.
+    """
     points = level_points(truth, mount, pose)[truth.object_id >= FIRST_OBSTACLE_ID]
     lowest = min(pose.height_m - perception.ground.margin_m, perception.band.below_m)
     points = points[(points[:, 2] >= -perception.band.above_m) & (points[:, 2] <= lowest)]
@@ -203,7 +217,10 @@ def truth_bins(
     bins = bin_of_bearing(np.degrees(np.arctan2(points[:, 1], points[:, 0])))
     occupied: dict[int, float] = {}
     for index in np.unique(bins):
-        occupied[int(index)] = float(ranges[bins == index].min())
+        in_bin = ranges[bins == index]
+        nearest = float(in_bin.min())
+        if in_bin.size >= (resolvable_px / nearest) ** 2:
+            occupied[int(index)] = nearest
     return occupied
 
 

@@ -59,15 +59,62 @@ def bin_of_bearing(bearing_deg: npt.NDArray[np.floating] | float) -> IntArray:
     return np.mod(index, SECTOR_COUNT).astype(np.int64)
 
 
-def _bins_of_points(forward_m: FloatArray, right_m: FloatArray) -> IntArray:
+def _bins_of_points(forward_m: FloatArray, right_m: FloatArray) -> tuple[IntArray, FloatArray]:
     """:func:`bin_of_bearing` of many float32 points, in float32 (half the passes of float64).
 
     The bearing in bins plus 72.5 is positive, so truncation is the floor.
+
+    Returns:
+        The bins, and the bearings in bin widths (plus 72.5), for lateral extents.
     """
     bins_per_radian = np.float32(SECTOR_COUNT / (2.0 * math.pi))
     turns = np.arctan2(right_m, forward_m) * bins_per_radian
     turns += np.float32(SECTOR_COUNT + 0.5)
-    return np.remainder(turns.astype(np.int64), SECTOR_COUNT)
+    return np.remainder(turns.astype(np.int64), SECTOR_COUNT), turns
+
+
+def _narrow(
+    bins: IntArray,
+    turns: FloatArray,
+    disparity_px: FloatArray,
+    distance_m: FloatArray,
+    focal_baseline: float,
+    fx: float,
+    window_px: float,
+    min_size_m: float,
+    visible_columns: npt.NDArray[np.integer],
+) -> npt.NDArray[np.bool_]:
+    """Bins whose nearest cluster is narrower, across the line of sight, than the smallest obstacle.
+
+    Such a cluster is a strip of background beside a silhouette that took its disparity, or
+    a sliver of an object whose body lies in the next bin (which reports it). A cluster's
+    points are those of its bin within its slab (see :func:`nearest_cluster`); their
+    bearings must span ``min_size_m`` at the cluster's distance, less one pixel, or most of
+    the bin where the bin itself is narrower than that (near the camera, or at the edge of
+    the field of view, where ``visible_columns`` of the bin are in the image).
+    """
+    found = np.isfinite(distance_m)
+    if not found.any() or min_size_m <= 0:
+        return np.zeros(SECTOR_COUNT, dtype=np.bool_)
+    near_px = np.where(found, focal_baseline / np.where(found, distance_m, 1.0), 0.0)
+    slab_px = np.maximum(window_px, min_size_m / focal_baseline * near_px * near_px)
+    top = near_px[bins] + window_px
+    member = found[bins] & (disparity_px <= top) & (disparity_px >= top - window_px - slab_px[bins])
+    chosen = np.flatnonzero(member)
+    order = chosen[np.argsort(bins[chosen], kind="stable")]
+    starts = np.searchsorted(bins[order], np.arange(SECTOR_COUNT + 1))
+    span_turns = np.zeros(SECTOR_COUNT)
+    for index in np.flatnonzero(found):
+        members = turns[order[starts[index] : starts[index + 1]]]
+        if members.size:
+            # The middle 90% (scaled back to the whole for evenly spread points): a few stray
+            # points do not widen a strip.
+            low, high = np.percentile(members, (5.0, 95.0))
+            span_turns[index] = (high - low) / 0.9
+    span_m = span_turns * (2.0 * math.pi / SECTOR_COUNT) * np.where(found, distance_m, 0.0)
+    range_m = np.where(found, distance_m, 0.0)
+    needed_m = np.minimum(min_size_m - range_m / fx, 0.3 * visible_columns / fx * range_m)
+    return np.asarray(found & (span_m < needed_m), dtype=np.bool_)
 
 
 class Candidates(NamedTuple):
@@ -135,15 +182,33 @@ def sector_scan(
     forward, right = candidates.forward_m, candidates.right_m
     range_m = np.sqrt(forward * forward + right * right)  # a third of np.hypot's time
     focal_baseline = np.float32(rig.fx * rig.baseline_m)
+    bins, turns = _bins_of_points(forward, right)
+    disparity = np.asarray(focal_baseline / np.maximum(range_m, np.float32(1e-3)), np.float32)
     nearest, picked = nearest_cluster(
-        _bins_of_points(forward, right),
-        np.asarray(focal_baseline / np.maximum(range_m, np.float32(1e-3)), np.float32),
+        bins,
+        disparity,
         focal_baseline,
         params.min_pixels,
         params.cluster_window_px,
         params.min_size_m / rig.baseline_m,
         params.min_size_m / float(focal_baseline),
     )
+    # A cluster narrower than the smallest obstacle is a strip of background beside a
+    # silhouette, or a sliver of an object reported in the next bin: the bin cannot vouch for
+    # a reading (never look behind it: that would read farther), nor for clear space.
+    narrow = _narrow(
+        bins,
+        turns,
+        disparity,
+        nearest,
+        float(focal_baseline),
+        rig.fx,
+        params.cluster_window_px,
+        params.min_size_m,
+        np.bincount(columns.bins, minlength=SECTOR_COUNT),
+    )
+    nearest[narrow] = np.nan
+    picked[narrow] = -1
     has_obstacle = np.isfinite(nearest)
     distance = nearest.astype(np.float32)
     points = np.full((SECTOR_COUNT, 3), np.nan, dtype=np.float32)
@@ -156,7 +221,8 @@ def sector_scan(
 
     valid_fraction = valid_count / np.maximum(total, 1)
     free_fraction = free_count / np.maximum(total, 1)
-    clear = ~has_obstacle & (total > 0) & (valid_fraction >= params.min_valid_fraction)
+    clear = ~has_obstacle & ~narrow & (total > 0)
+    clear &= valid_fraction >= params.min_valid_fraction
     clear &= free_fraction >= params.min_free_fraction
     clear &= unresolved_count / np.maximum(total, 1) <= params.max_unresolved_fraction
     distance[clear] = np.inf

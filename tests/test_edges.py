@@ -1,0 +1,65 @@
+"""Depth edges: background that took a silhouette's disparity is dropped, thin poles stay."""
+
+from __future__ import annotations
+
+import numpy as np
+
+from avoidd.evaluation.edges import edge_suite, format_edges, run_edge_case
+from avoidd.vision.edges import fattened_pixels, hidden_from_right, short_occlusion_gaps
+
+
+def test_a_pixel_a_nearer_one_hides_from_the_right_camera_is_dropped() -> None:
+    # Background at d = 5 up to column 9, then a surface whose disparity climbs 1 px per
+    # column (seen edge-on by the right camera), then a near plateau at d = 12.
+    row = np.array([5.0] * 10 + [8.0, 9.0, 10.0, 11.0] + [12.0] * 10, dtype=np.float32)
+    hidden = hidden_from_right(row[None, :])[0]
+    # 10..13 land where 14 lands (u - d = 2): covered by it, the nearest there. So are the
+    # background columns 7..9, which land at 2..4, where 14..16 land.
+    assert hidden[7:14].all()
+    assert not hidden[:7].any() and not hidden[14:].any()
+
+
+def test_a_blind_strip_narrower_than_the_geometry_moves_the_silhouette() -> None:
+    # Background d = 4, two unmeasured columns, then d = 12: the right camera cannot see
+    # 12 - 4 = 8 columns left of the near surface, so its first 6 columns are background.
+    row = np.array([4.0] * 10 + [np.nan] * 2 + [12.0] * 12, dtype=np.float32)
+    drop = short_occlusion_gaps(row[None, :], 2.0, 16)[0]
+    assert drop[12:18].all() and not drop[18:].any() and not drop[:12].any()
+    # A gap as wide as the geometry asks for changes nothing.
+    wide = np.array([4.0] * 4 + [np.nan] * 8 + [12.0] * 12, dtype=np.float32)
+    assert not short_occlusion_gaps(wide[None, :], 2.0, 16).any()
+
+
+def test_sky_beside_a_silhouette_does_not_keep_its_disparity() -> None:
+    # A textured pole (d = 10) in front of uniform sky: the right view is the left view with
+    # the pole moved 10 px left. The matcher smeared the pole's disparity 4 px into the sky
+    # on its right; at either disparity the sky there looks the same: dropped. The pole's
+    # own pixels match only at its disparity: kept.
+    rng = np.random.default_rng(3)
+    height, width = 20, 80
+    left = np.full((height, width), 200.0, dtype=np.float32)
+    pole = rng.uniform(20.0, 120.0, (height, 8)).astype(np.float32)
+    left[:, 40:48] = pole
+    right = np.full((height, width), 200.0, dtype=np.float32)
+    right[:, 30:38] = pole
+    disparity = np.full((height, width), np.nan, dtype=np.float32)
+    disparity[:, 40:52] = 10.0  # 48..51: fattened into the sky
+    drop = fattened_pixels(
+        left.astype(np.uint8), right.astype(np.uint8), disparity, 8, 2.0, noise_sigma=1.0
+    )
+    assert drop[:, 48:52].all()
+    assert not drop[:, 40:48].any()
+
+
+def test_silhouettes_against_the_tree_line_do_not_spill_into_the_next_bin() -> None:
+    # Seeded boxes and poles with a side edge 0.2 to 1.5 deg past a bin boundary, a third of
+    # them 5 cm poles at 5 m. Against the tree line: no bin beside the object reads it, and
+    # every object is read within 10% in its bin or the next (`avoidd eval-perception
+    # --edge-scenes`). Over open flat ground (the odd scenes) far ground read too near
+    # stands up at 5 to 19 m all over (docs/perception.md): not scored here.
+    results = [run_edge_case(c) for c in edge_suite(24, seed=4242)]
+    print(format_edges(results))
+    treeline = [r for r in results if r.name.endswith("treeline")]
+    assert len(treeline) == 12
+    assert [r.beside for r in treeline] == [[] for _ in treeline]
+    assert [r.missed for r in results] == [None] * len(results)
