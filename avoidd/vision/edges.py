@@ -66,7 +66,9 @@ def fattened_pixels(
         return np.asarray(cv2.erode(image, kernel, borderType=cv2.BORDER_REPLICATE))
 
     # Near the edge only: within the radius of a jump down or of an unmeasured pixel.
-    step = (measured - row_min(measured, radius_px) >= jump) | (row_min(valid_u8, radius_px) == 0)
+    with np.errstate(invalid="ignore"):  # inf - inf where nothing is measured: not a step
+        step = measured - row_min(measured, radius_px) >= jump
+    step |= row_min(valid_u8, radius_px) == 0
     rows, columns = np.nonzero(valid & step)
     if rows.size == 0:
         return np.zeros(valid.shape, dtype=np.bool_)

@@ -1,0 +1,1 @@
+"""Simulation: worlds, the vehicle simulator, scenarios and runners for real SITL autopilots."""

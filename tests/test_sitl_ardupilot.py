@@ -1,0 +1,244 @@
+"""avoidd against a real ArduCopter SITL: how ArduPilot reads OBSTACLE_DISTANCE, what it does
+when avoidd loses its camera, and avoidd after an autopilot reboot."""
+
+from __future__ import annotations
+
+import asyncio
+import time
+from pathlib import Path
+from typing import Any
+
+import pytest
+
+from avoidd.daemon import Daemon
+from avoidd.daemon.outputs import Outputs
+from avoidd.errors import SourceError
+from avoidd.loading import load_all
+from avoidd.mavlink.layout import ARDUPILOT_LAYOUT
+from avoidd.sim.ardupilot import ArduPilotSitl
+from avoidd.sources import open_source
+from tests.helpers import free_udp_port, synthetic_config, wait_for
+from tests.test_wire_layout import ardupilot_sectors
+
+pytestmark = pytest.mark.sitl
+
+PROXIMITY = 1 << 26  # MAV_SYS_STATUS_SENSOR_PROXIMITY
+FRONT, FRONT_RIGHT = 10, 11  # ArduPilot's proximity DISTANCE_SENSOR ids: 10 + sector
+
+# A box in the right half of the front sector (+11 deg, 2.8 m), a pole in its left half
+# (-15 deg, 6 m) and a box in the front-right sector (+35 deg, 4 m): with bin 0 straight
+# ahead, ArduPilot used to keep only the left half of the front sector (6 m, not 2.8 m).
+SCENE = {
+    "kind": "synthetic",
+    "fps": 10,
+    "seed": 3,
+    "obstacles": [
+        {"shape": "box", "forward_m": 3.0, "right_m": 0.6, "width_m": 0.4, "depth_m": 0.4},
+        {"shape": "pole", "forward_m": 6.0, "right_m": -1.6, "width_m": 0.3},
+        {"shape": "box", "forward_m": 3.4, "right_m": 2.3, "width_m": 0.6, "depth_m": 0.4},
+    ],
+}
+
+
+async def _sitl_and_daemon(
+    sitl_dir: Path, tmp_path: Path, **daemon_args: Any
+) -> tuple[ArduPilotSitl, Daemon, asyncio.Task[int]]:
+    port = free_udp_port()
+    sitl = ArduPilotSitl(sitl_dir, port)
+    await sitl.__aenter__()
+    config_path = synthetic_config(
+        tmp_path,
+        f"udpin:127.0.0.1:{port}",
+        source=SCENE,
+        mavlink={"system_id": "auto"},
+        pipeline={"max_age_ms": 300, "log_interval_s": 5.0},
+    )
+    config, calibrations = load_all(config_path)
+    daemon = Daemon(config, calibrations, **daemon_args)
+    return sitl, daemon, asyncio.create_task(daemon.run())
+
+
+async def _stop(sitl: ArduPilotSitl, daemon: Daemon, task: asyncio.Task[int]) -> None:
+    daemon.stop()
+    try:
+        assert await asyncio.wait_for(task, 10.0) == 0
+    finally:
+        await sitl.stop()
+
+
+async def test_ardupilot_keeps_the_nearest_object_of_each_sector(
+    sitl_dir: Path, tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    sent: list[tuple[int, Any]] = []
+    build = Outputs.obstacle_distance_message
+
+    def recording(self: Outputs, now_ns: int) -> Any:
+        message = build(self, now_ns)
+        if message is not None:
+            sent.append((time.monotonic_ns(), message))
+        return message
+
+    monkeypatch.setattr(Outputs, "obstacle_distance_message", recording)
+    sitl, daemon, task = await _sitl_and_daemon(sitl_dir, tmp_path)
+    try:
+        gcs = sitl.gcs
+        assert gcs is not None
+        assert await gcs.request_message_interval("DISTANCE_SENSOR", 10) == 0
+        assert await gcs.request_message_interval("SYS_STATUS", 5) == 0
+        assert await wait_for(lambda: daemon.vehicle.link_up, 20.0)
+        assert await wait_for(
+            lambda: len([m for m in gcs.of_type("DISTANCE_SENSOR") if m.id == FRONT]) > 5, 20.0
+        )
+        since = time.monotonic_ns()
+        await asyncio.sleep(5.0)
+        reports = [
+            (h.received_ns, h.message)
+            for h in gcs.heard
+            if h.received_ns >= since
+            and h.message.get_type() == "DISTANCE_SENSOR"
+            and h.message.id in (FRONT, FRONT_RIGHT)
+        ]
+        statuses = gcs.of_type("SYS_STATUS", since)
+    finally:
+        await _stop(sitl, daemon, task)
+    # What ArduPilot reports for a sector is what avoidd sent for it: the nearest of its
+    # bins, as the model of its folding (tests/test_wire_layout.py) gives it from each message
+    # avoidd sent in the second before (ArduPilot smooths a sector's distance over updates).
+    front = []
+    for received_ns, report in reports:
+        recent = [m for t, m in sent if received_ns - 1_000_000_000 <= t <= received_ns]
+        expected = [
+            ardupilot_sectors(list(m.distances), ARDUPILOT_LAYOUT).get(report.id - FRONT)
+            for m in recent
+        ]
+        expected_cm = [100 * e for e in expected if e is not None]
+        assert expected_cm, f"ArduPilot reports sector {report.id - FRONT}, avoidd sent none"
+        low, high = min(expected_cm), max(expected_cm)
+        assert 0.95 * low - 5 <= report.current_distance <= 1.05 * high + 5, (
+            report.id,
+            report.current_distance,
+            low,
+            high,
+        )
+        if report.id == FRONT:
+            front.append(report.current_distance)
+    print(f"front sector {min(front)}..{max(front)} cm over {len(front)} reports")
+    # Every report of the front sector is the box at 2.8 m (its nearest corner 2.83 m), in
+    # the sector's right half, never the pole at 6 m in its left half.
+    assert len(front) >= 30
+    assert all(255 <= d <= 300 for d in front), sorted(set(front))
+    # And ArduPilot calls its proximity sensor present and healthy throughout.
+    assert statuses and all(s.onboard_control_sensors_health & PROXIMITY for s in statuses)
+
+
+class Unpluggable:
+    """Opens the real source; once ``unplugged`` is set, every read fails like a lost camera."""
+
+    def __init__(self) -> None:
+        self.unplugged_ns: int | None = None
+
+    def __call__(self, *args: Any, **kwargs: Any) -> Any:
+        if self.unplugged_ns is not None:
+            raise SourceError("camera 'front': /dev/video0 does not exist (unplugged)")
+        inner = open_source(*args, **kwargs)
+        outer = self
+
+        class Camera:
+            description = "unpluggable camera"
+
+            def read(self) -> Any:
+                if outer.unplugged_ns is not None:
+                    raise SourceError("camera 'front': no frame (unplugged)")
+                return inner.read()
+
+            def close(self) -> None:
+                inner.close()
+
+        return Camera()
+
+
+async def test_ardupilot_says_no_data_within_a_second_of_losing_the_camera(
+    sitl_dir: Path, tmp_path: Path
+) -> None:
+    camera = Unpluggable()
+    sitl, daemon, task = await _sitl_and_daemon(sitl_dir, tmp_path, open_source=camera)
+    try:
+        gcs = sitl.gcs
+        assert gcs is not None
+        assert await gcs.request_message_interval("SYS_STATUS", 20) == 0
+        healthy = lambda: any(  # noqa: E731
+            s.onboard_control_sensors_health & PROXIMITY
+            for s in gcs.of_type("SYS_STATUS", time.monotonic_ns() - 200_000_000)
+        )
+        assert await wait_for(healthy, 30.0), "proximity never became healthy"
+        await asyncio.sleep(1.0)
+        camera.unplugged_ns = time.monotonic_ns()
+        sick = await gcs.next_message(
+            lambda m: (
+                m.get_type() == "SYS_STATUS" and not m.onboard_control_sensors_health & PROXIMITY
+            ),
+            5.0,
+        )
+        lost_s = (time.monotonic_ns() - camera.unplugged_ns) / 1e9
+        # While the camera is gone nothing is sent to ArduPilot (no message of unknown bins).
+        sent = daemon.sent["OBSTACLE_DISTANCE"]
+        await asyncio.sleep(1.0)
+        assert daemon.sent["OBSTACLE_DISTANCE"] == sent
+        # avoidd's own STATUSTEXT, which ArduPilot forwards to its ground station.
+        texts = [
+            h.message.text
+            for h in gcs.heard
+            if h.message.get_type() == "STATUSTEXT" and h.message.get_srcComponent() == 196
+        ]
+    finally:
+        await _stop(sitl, daemon, task)
+    print(f"proximity unhealthy {lost_s:.2f} s after the camera was unplugged")
+    assert sick is not None
+    assert lost_s <= 1.0
+    assert "avoidd: front stale, camera lost" in texts or "avoidd: front camera lost" in texts
+
+
+async def test_streams_come_back_within_two_seconds_of_a_reboot(
+    sitl_dir: Path, tmp_path: Path
+) -> None:
+    sitl, daemon, task = await _sitl_and_daemon(sitl_dir, tmp_path)
+    try:
+        gcs = sitl.gcs
+        assert gcs is not None
+        vehicle = daemon.vehicle
+        assert await wait_for(lambda: vehicle.link_up and vehicle.streams_acknowledged, 30.0)
+        assert await wait_for(lambda: daemon.received["ATTITUDE"] > 50, 10.0)
+        # MAV_CMD_PREFLIGHT_REBOOT_SHUTDOWN: reboot the autopilot (it is disarmed).
+        assert await gcs.command(246, 1.0) == 0
+        # The autopilot is back when it heartbeats again after a gap (it beats at 1 Hz).
+        last = [
+            max(
+                h.received_ns
+                for h in gcs.heard
+                if h.message.get_type() == "HEARTBEAT" and gcs.from_autopilot(h.message)
+            )
+        ]
+
+        def beat(message: Any) -> bool:
+            if message.get_type() != "HEARTBEAT" or not gcs.from_autopilot(message):
+                return False
+            now = time.monotonic_ns()
+            gap = now - last[0] > 1_500_000_000
+            last[0] = now
+            return gap
+
+        back = await gcs.next_message(beat, 20.0)
+        assert back is not None, "the autopilot did not come back"
+        back_ns = time.monotonic_ns()
+        attitude_before = daemon.received["ATTITUDE"]
+        streams_back = await wait_for(
+            lambda: daemon.received["ATTITUDE"] > attitude_before + 10, 5.0
+        )
+        took_s = (time.monotonic_ns() - back_ns) / 1e9
+        rebooted = vehicle.reboots
+        link_downs = [m.text for m in gcs.of_type("STATUSTEXT")]
+    finally:
+        await _stop(sitl, daemon, task)
+    print(f"streams back {took_s:.2f} s after the autopilot's first heartbeat; reboots {rebooted}")
+    assert streams_back and took_s <= 2.0
+    assert rebooted >= 1 or any("link up" in t for t in link_downs)
