@@ -82,6 +82,12 @@ def load_all(path: Path, input_given: bool = False) -> tuple[AppConfig, dict[str
                 f"mavlink.signing.timestamp_file: folder {folder} missing or not writable; "
                 "create it (systemd: StateDirectory=avoidd)"
             )
+    if config.avoidance.enabled:
+        # Refused rather than ignored: a pilot must not believe the daemon will steer.
+        problems.append(
+            f"{path}: avoidance.enabled: the daemon does not send setpoints yet (the planner "
+            "flies only in the simulator, docs/simulation.md); set avoidance.enabled: false"
+        )
     problems.extend(_check_min_distance(path, config, calibrations))
     if not input_given:
         problems.extend(_check_recordings(path, config))

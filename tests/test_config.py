@@ -13,10 +13,12 @@ from avoidd.cli import main
 from avoidd.config import (
     AppConfig,
     AttitudeConfig,
+    AvoidanceConfig,
     BandConfig,
     CensusConfig,
     DistanceSensorConfig,
     FilesSourceConfig,
+    GoalConfig,
     GroundConfig,
     HeadConfig,
     HistogramConfig,
@@ -414,6 +416,14 @@ perception:
   obstacles:
     #@ perception.obstacles
     min_points: 30
+avoidance:
+  #@ avoidance
+  enabled: false
+  goal:
+    #@ avoidance.goal
+    north_m: 10
+    east_m: 0
+    altitude_m: 2
 """
 
 SECTION_MODELS: dict[str, type[BaseModel]] = {
@@ -447,6 +457,8 @@ SECTION_MODELS: dict[str, type[BaseModel]] = {
     "perception.attitude": AttitudeConfig,
     "perception.temporal": TemporalConfig,
     "perception.obstacles": ObstaclesConfig,
+    "avoidance": AvoidanceConfig,
+    "avoidance.goal": GoalConfig,
 }
 
 

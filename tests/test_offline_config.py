@@ -116,3 +116,14 @@ def test_check_config_tells_the_range_and_the_field_of_view(
     right = np.degrees(np.arctan((rig["width"] - 1 - rig["cx"]) / rig["fx"]))
     assert f"effective HFOV {right - left:.1f} deg" in out
     assert "OBSTACLE_DISTANCE range" in out
+
+
+def test_avoidance_enabled_is_refused_until_the_daemon_steers(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    config = _config(tmp_path, SOURCE, mavlink=True)
+    text = config.read_text() + "avoidance: {enabled: true}\n"
+    config.write_text(text)
+    assert main(["check-config", str(config)]) == 2
+    err = capsys.readouterr().err
+    assert "avoidance.enabled" in err and "avoidance.enabled: false" in err

@@ -31,6 +31,8 @@ COMMANDS: dict[str, tuple[str, str]] = {
     ),
     "bench": ("bench", "per-stage milliseconds of each matcher next to bare OpenCV SGBM"),
     "bench-link": ("bench", "measure CPU for decoding a stream of incoming MAVLink"),
+    "bench-sim": ("bench", "simulator render rate, planner cost, lockstep scenario time"),
+    "sim": ("sim", "closed-loop scenarios in the simulator: run one, or a batch"),
     "calibrate": ("calibrate", "stereo calibration from left/ and right/ images of a board"),
     "render-board": ("calibrate", "render board pairs through a virtual rig (to try calibrate)"),
     "import-calibration": (

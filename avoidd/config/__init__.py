@@ -5,6 +5,7 @@ whichever module a model lives in.
 """
 
 from avoidd.config.app import AppConfig, PipelineConfig, load_config
+from avoidd.config.avoidance import AvoidanceConfig, GoalConfig
 from avoidd.config.base import ConfigPath, Strict
 from avoidd.config.connection import LinkSpec, parse_connection
 from avoidd.config.head import HeadConfig, MountConfig
@@ -49,12 +50,14 @@ from avoidd.config.stereo import (
 __all__ = [
     "AppConfig",
     "AttitudeConfig",
+    "AvoidanceConfig",
     "BandConfig",
     "CensusConfig",
     "ConfigPath",
     "DisparityRange",
     "DistanceSensorConfig",
     "FilesSourceConfig",
+    "GoalConfig",
     "GroundConfig",
     "HeadConfig",
     "HistogramConfig",

@@ -7,6 +7,7 @@ from typing import Literal
 
 from pydantic import Field, field_validator
 
+from avoidd.config.avoidance import AvoidanceConfig
 from avoidd.config.base import Strict
 from avoidd.config.head import HeadConfig
 from avoidd.config.mavlink import MavlinkConfig
@@ -35,6 +36,7 @@ class AppConfig(Strict):
     mavlink: MavlinkConfig = MavlinkConfig()
     pipeline: PipelineConfig = PipelineConfig()
     perception: PerceptionConfig = PerceptionConfig()
+    avoidance: AvoidanceConfig = AvoidanceConfig()
 
     @field_validator("heads")
     @classmethod

@@ -1,0 +1,109 @@
+"""``avoidd sim run`` and ``avoidd sim batch``: closed-loop scenarios in the simulator."""
+
+from __future__ import annotations
+
+import argparse
+import json
+import os
+from concurrent.futures import ProcessPoolExecutor, as_completed
+from pathlib import Path
+from typing import Any
+
+from avoidd.commands import EXIT_FAILURE, EXIT_OK
+
+
+def configure(name: str, parser: argparse.ArgumentParser) -> None:
+    """Add ``sim run`` and ``sim batch``."""
+    actions = parser.add_subparsers(dest="sim_action", metavar="ACTION", required=True)
+    run = actions.add_parser("run", help="run one scenario and write its trace, summary, plot")
+    run.add_argument("scenario", type=Path, help="scenario file (sitl/scenarios/*.yaml)")
+    run.add_argument("--seed", type=int, help="replace the generator's (or world's) seed")
+    run.add_argument("--out", type=Path, help="folder for trace.jsonl, summary.json, plot.png")
+    run.set_defaults(handler=run_one)
+    batch = actions.add_parser("batch", help="run many scenarios and seeds; print a table")
+    batch.add_argument("scenarios", type=Path, nargs="+", help="scenario files")
+    batch.add_argument("--seeds", type=int, default=1, help="seeds per scenario (1, 2, ...)")
+    batch.add_argument("--workers", type=int, default=os.cpu_count() or 1, help="local processes")
+    batch.add_argument("--json", type=Path, help="also write every summary as JSON")
+    batch.set_defaults(handler=run_batch)
+
+
+def run_one(args: argparse.Namespace) -> int:
+    """Run one scenario; exit 0 when it passes its criteria, 1 when not."""
+    from avoidd.sim.scenario import run_file, write_outputs
+
+    run, summary = run_file(args.scenario, args.seed)
+    print(format_table([summary.as_json() | {"wall_time_s": round(summary.wall_time_s, 1)}]))
+    if args.out is not None:
+        for path in write_outputs(run, summary, args.out):
+            print(f"wrote {path}")
+    for failure in summary.failures:
+        print(f"FAILED: {failure}")
+    return EXIT_OK if summary.passed else EXIT_FAILURE
+
+
+def _one(path: Path, seed: int) -> dict[str, Any]:
+    from avoidd.sim.scenario import run_file
+
+    _, summary = run_file(path, seed)
+    return summary.as_json() | {"file": str(path), "wall_time_s": round(summary.wall_time_s, 1)}
+
+
+def run_batch(args: argparse.Namespace) -> int:
+    """Run every scenario with seeds 1..N in local processes; exit 0 when all pass."""
+    from avoidd.config.sim import load_scenario
+    from avoidd.progress import Progress
+
+    for path in args.scenarios:
+        load_scenario(path)  # every file valid before anything runs
+    jobs = [(path, seed) for path in args.scenarios for seed in range(1, args.seeds + 1)]
+    progress = Progress(len(jobs))
+    results: list[dict[str, Any]] = []
+    with ProcessPoolExecutor(max_workers=max(1, args.workers)) as pool:
+        futures = {pool.submit(_one, path, seed): (path, seed) for path, seed in jobs}
+        for future in as_completed(futures):
+            result = future.result()
+            results.append(result)
+            progress.step(f"{result['name']} seed {result['seed']}")
+    results.sort(key=lambda r: (r["file"], r["seed"]))
+    print(format_table(results))
+    print(format_totals(results))
+    if args.json is not None:
+        args.json.write_text(json.dumps(results, indent=2) + "\n")
+    return EXIT_OK if all(r["passed"] for r in results) else EXIT_FAILURE
+
+
+def _number(value: float | None, digits: int = 2) -> str:
+    return "-" if value is None else f"{value:.{digits}f}"
+
+
+def format_table(results: list[dict[str, Any]]) -> str:
+    """One line per run: collision, clearance, goal, time, speed, side changes, verdict."""
+    lines = [
+        f"{'scenario':24} {'seed':>4} {'coll':>4} {'min m':>6} {'p01 m':>6} {'goal':>4} "
+        f"{'t goal':>6} {'mean v':>6} {'sides':>5} {'end':9} {'wall s':>6} verdict"
+    ]
+    for r in results:
+        lines.append(
+            f"{r['name'][:24]:24} {r['seed']:>4} {'YES' if r['collided'] else 'no':>4} "
+            f"{_number(r['min_clearance_m']):>6} {_number(r['clearance_p01_m']):>6} "
+            f"{'yes' if r['reached'] else 'no':>4} {_number(r['time_to_goal_s'], 1):>6} "
+            f"{_number(r['mean_speed_m_s']):>6} {r['side_changes']:>5} {r['end_state'][:9]:9} "
+            f"{_number(r.get('wall_time_s'), 1):>6} "
+            f"{'pass' if r['passed'] else 'FAIL: ' + '; '.join(r['failures'])}"
+        )
+    return "\n".join(lines)
+
+
+def format_totals(results: list[dict[str, Any]]) -> str:
+    """Collisions, goals reached, passes, mean time to goal over a batch."""
+    count = len(results)
+    collisions = sum(r["collided"] for r in results)
+    reached = [r for r in results if r["reached"]]
+    times = [r["time_to_goal_s"] for r in reached]
+    mean_time = sum(times) / len(times) if times else None
+    passed = sum(r["passed"] for r in results)
+    return (
+        f"{count} runs: {collisions} collisions, {len(reached)} goals reached, "
+        f"{passed} passed; mean time to goal {_number(mean_time, 1)} s"
+    )

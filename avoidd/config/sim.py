@@ -1,0 +1,201 @@
+"""Simulation files: worlds (``sitl/worlds/*.yaml``) and scenarios (``sitl/scenarios/*.yaml``).
+
+Validated like the daemon's configuration: unknown keys, impossible values and missing keys are
+refused with the file, line and key path.
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+from typing import Annotated, Literal
+
+from pydantic import AfterValidator, Field, model_validator
+
+from avoidd.config.avoidance import AvoidanceConfig
+from avoidd.config.base import ConfigPath, Strict, _existing_file
+from avoidd.yamlfile import load_yaml, validate_document
+
+Metres = Annotated[float, Field(ge=-1000.0, le=1000.0)]
+
+
+class BoxConfig(Strict):
+    """A box standing on the ground: centre of its footprint, size, yaw (degrees from north)."""
+
+    shape: Literal["box"]
+    north_m: Metres
+    east_m: Metres
+    length_m: float = Field(1.0, gt=0.0, le=500.0)
+    """Along its yaw direction."""
+    width_m: float = Field(1.0, gt=0.0, le=500.0)
+    height_m: float = Field(3.0, gt=0.0, le=200.0)
+    yaw_deg: float = Field(0.0, ge=-360.0, le=360.0)
+    textured: bool = True
+
+
+class WallConfig(Strict):
+    """A wall between two points on the ground (a thin box)."""
+
+    shape: Literal["wall"]
+    start_ne_m: tuple[Metres, Metres]
+    end_ne_m: tuple[Metres, Metres]
+    thickness_m: float = Field(0.3, gt=0.0, le=20.0)
+    height_m: float = Field(4.0, gt=0.0, le=200.0)
+    textured: bool = True
+
+    @model_validator(mode="after")
+    def _length(self) -> WallConfig:
+        if self.start_ne_m == self.end_ne_m:
+            raise ValueError("a wall needs two different end points")
+        return self
+
+
+class CylinderConfig(Strict):
+    """A pole or a tree trunk: a vertical cylinder standing on the ground."""
+
+    shape: Literal["pole", "tree"]
+    north_m: Metres
+    east_m: Metres
+    diameter_m: float = Field(0.3, gt=0.0, le=50.0)
+    height_m: float = Field(5.0, gt=0.0, le=200.0)
+    textured: bool = True
+
+
+ObstacleConfig = Annotated[BoxConfig | WallConfig | CylinderConfig, Field(discriminator="shape")]
+
+
+class WorldConfig(Strict):
+    """A world: textured ground, obstacles standing on it, a tree line far around, sky.
+
+    Attributes:
+        seed: Seed of every surface's texture.
+        obstacles: The obstacles.
+        treeline_m: Radius of a textured tree line around the origin (None: open horizon).
+    """
+
+    version: Literal[1]
+    seed: int = Field(1, ge=0)
+    obstacles: list[ObstacleConfig] = Field(default_factory=list)
+    treeline_m: float | None = Field(60.0, gt=5.0, le=2000.0)
+
+
+class GeneratedWorldConfig(Strict):
+    """A world drawn by a seeded generator (see ``avoidd.sim.generators``).
+
+    Attributes:
+        kind: The generator.
+        seed: Its seed.
+        density: Obstacles per 100 square metres (pole forest, boxes).
+        gap_m: Width of the gap in a wall (wall with a gap).
+        length_m: Length of the course along the way to the goal.
+    """
+
+    kind: Literal["pole_forest", "wall_gap", "l_corridor", "dead_end", "boxes", "wall", "open"]
+    seed: int = Field(1, ge=0)
+    density: float = Field(3.0, gt=0.0, le=50.0)
+    gap_m: float = Field(4.0, gt=0.5, le=50.0)
+    length_m: float = Field(30.0, gt=5.0, le=500.0)
+
+
+class PlacementConfig(Strict):
+    """A place in the local frame, altitude above the origin, heading from north."""
+
+    north_m: Metres = 0.0
+    east_m: Metres = 0.0
+    altitude_m: float = Field(2.0, ge=0.0, le=500.0)
+    yaw_deg: float = Field(0.0, ge=-360.0, le=360.0)
+
+
+class ActionConfig(Strict):
+    """Something that happens during a scenario.
+
+    Attributes:
+        t_s: When.
+        action: ``mode`` (switch to ``mode``), ``goal`` (fly to ``goal``), ``camera_unplug``,
+            ``camera_replug``, ``disarm``.
+        mode: The flight mode (for ``mode``).
+        goal: The new goal (for ``goal``).
+    """
+
+    t_s: float = Field(ge=0.0, le=3600.0)
+    action: Literal["mode", "goal", "camera_unplug", "camera_replug", "disarm"]
+    mode: str | None = None
+    goal: PlacementConfig | None = None
+
+    @model_validator(mode="after")
+    def _arguments(self) -> ActionConfig:
+        if self.action == "mode" and not self.mode:
+            raise ValueError("a mode action names the mode, e.g. mode: GUIDED")
+        if self.action == "goal" and self.goal is None:
+            raise ValueError("a goal action gives the goal: {north_m, east_m, altitude_m}")
+        return self
+
+
+class PassConfig(Strict):
+    """What a run must show to pass.
+
+    Attributes:
+        no_collision: The vehicle never comes within its radius of an obstacle.
+        min_clearance_m: Smallest allowed distance between the vehicle's edge and an obstacle
+            in 99 % of the time steps (None: not checked).
+        reach_goal_s: The goal must be reached within this time (None: not required).
+        end_state: The planner state the run must end in (``no path`` for a dead end).
+    """
+
+    no_collision: bool = True
+    min_clearance_m: float | None = None
+    reach_goal_s: float | None = Field(None, gt=0.0)
+    end_state: Literal["arrived", "no path", "moving", "stale"] | None = None
+
+
+class ScenarioConfig(Strict):
+    """A closed-loop scenario.
+
+    Attributes:
+        name: For reports.
+        world: A world file, or a generator.
+        autopilot: The simulated autopilot's flavour.
+        start: Where the vehicle starts (flying: the scenario begins in the air).
+        goal: Where avoidd is to fly it (a generated world brings its own; this replaces it).
+        duration_s: Length of the run.
+        fps: Camera frames per second.
+        resolution: Camera size (``320x240`` or ``640x480``).
+        perception: ``stereo`` (render both views and run the pipeline) or ``oracle`` (exact
+            distances per bin: to tell planner from perception errors).
+        avoidance: The planner's settings (``enabled`` is implied).
+        wind_m_s: Steady wind (north, east).
+        timeline: What happens when.
+        passing: The pass criteria.
+    """
+
+    version: Literal[1]
+    name: str = Field(min_length=1, max_length=80)
+    world: Annotated[ConfigPath, AfterValidator(_existing_file)] | GeneratedWorldConfig
+    autopilot: Literal["ardupilot", "px4"] = "ardupilot"
+    start: PlacementConfig = PlacementConfig()
+    goal: PlacementConfig | None = None
+    duration_s: float = Field(60.0, gt=0.0, le=3600.0)
+    fps: float = Field(15.0, gt=0.0, le=60.0)
+    resolution: Literal["320x240", "640x480"] = "320x240"
+    perception: Literal["stereo", "oracle"] = "stereo"
+    avoidance: AvoidanceConfig = AvoidanceConfig(enabled=True)
+    wind_m_s: tuple[float, float] = (0.0, 0.0)
+    timeline: list[ActionConfig] = Field(default_factory=list)
+    passing: PassConfig = Field(default_factory=PassConfig, alias="pass")
+
+    model_config = Strict.model_config | {"populate_by_name": True}
+
+    @model_validator(mode="after")
+    def _goal(self) -> ScenarioConfig:
+        if self.goal is None and not isinstance(self.world, GeneratedWorldConfig):
+            raise ValueError("a scenario on a world file needs a goal: {north_m, east_m}")
+        return self
+
+
+def load_world(path: Path) -> WorldConfig:
+    """Load and validate a world file (errors name the file, line and key path)."""
+    return validate_document(load_yaml(path), WorldConfig, {"base_dir": path.parent.resolve()})
+
+
+def load_scenario(path: Path) -> ScenarioConfig:
+    """Load and validate a scenario file (errors name the file, line and key path)."""
+    return validate_document(load_yaml(path), ScenarioConfig, {"base_dir": path.parent.resolve()})

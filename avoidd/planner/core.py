@@ -1,0 +1,379 @@
+"""The local planner's step: from the vehicle's state, the obstacles and a goal to a velocity.
+
+VFH+ in spirit, over 72 world directions (5 degrees from north):
+
+- every obstacle point is enlarged by the vehicle's radius plus the margin, exactly for a disc
+  (:func:`~avoidd.planner.geometry.free_distance`): each direction gets the distance it is free
+  for; a direction whose scan bin (or a neighbour) is unknown is blocked, unless unknown is
+  configured free;
+- a binary histogram with two thresholds (hysteresis): a direction is admissible once it is
+  free for ``enter`` metres, and stays so until it is free for less than ``leave``;
+- among admissible directions the cheapest wins, ``mu1 |goal delta| + mu2 |heading delta| +
+  mu3 |previous delta|`` with ``mu1 > mu2 + mu3``; once the vehicle has turned to one side of
+  the goal direction to pass an obstacle, the other side costs extra until the goal direction
+  is admissible again (no flipping between the two sides of a pole);
+- speed along it: ``v <= min(v_max, sqrt(2 a (d - v latency)))``, ``d`` the free distance that
+  way (radius and margin already taken off), and no faster than stopping at the goal;
+- yaw toward the direction of travel (rate-limited), so a forward camera sees the way;
+- no admissible direction: hold, then turn up to 180 degrees each way looking for one; none
+  within ``dead_end_scan_s``: hold and say "no path to goal". Never crawl forward.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from avoidd.config import AvoidanceConfig
+from avoidd.planner.geometry import directions_rad, free_distance, wrap_rad
+from avoidd.planner.memory import ObstacleMemory
+from avoidd.planner.visibility import VisibilityGrid
+
+MU_GOAL = 5.0
+MU_HEADING = 2.0
+MU_PREVIOUS = 2.0
+COMMITMENT_COST = 3.0 * math.pi * MU_GOAL
+"""Extra cost of the side of the goal direction the vehicle is not committed to."""
+_ALTITUDE_GAIN = 1.0
+_BUFFER_M = 0.25
+_BUFFER_S = 0.15
+"""Turning buffer: metres, and metres per m/s of speed (see :meth:`Planner.decide`)."""
+_YAW_GAIN = 2.0
+_INSIDE_SLACK_M = 0.05
+"""Within the clearance of a point, the ways that bring the vehicle this much nearer close."""
+_ARRIVED_ALTITUDE_M = 0.5
+
+
+@dataclass(frozen=True)
+class Pose:
+    """The vehicle's state in the autopilot's local frame.
+
+    Attributes:
+        t_ns: When it was true (local monotonic clock).
+        north_m: Position north of the origin.
+        east_m: Position east.
+        down_m: Position down (negative above the origin).
+        yaw_rad: Heading, radians from north, clockwise.
+        north_m_s: Velocity north.
+        east_m_s: Velocity east.
+    """
+
+    t_ns: int
+    north_m: float
+    east_m: float
+    down_m: float
+    yaw_rad: float
+    north_m_s: float = 0.0
+    east_m_s: float = 0.0
+
+
+@dataclass(frozen=True)
+class Goal:
+    """Where to go: local frame, altitude above the origin."""
+
+    north_m: float
+    east_m: float
+    altitude_m: float
+    label: str = "goal"
+
+
+@dataclass(frozen=True)
+class Decision:
+    """What the planner wants now.
+
+    Attributes:
+        velocity_ned: Velocity setpoint, m/s (north, east, down).
+        yaw_rate_rad_s: Yaw rate setpoint.
+        state: ``moving``, ``arrived``, ``dead end`` (holding, turning to look), ``no path``,
+            ``stale`` (perception is not fresh: holding).
+        direction_deg: The chosen direction (degrees from north), if moving.
+        speed_limit_m_s: The speed law's limit that way.
+        free_m: Free distance along the chosen direction.
+        goal_distance_m: Horizontal distance to the goal.
+    """
+
+    velocity_ned: tuple[float, float, float]
+    yaw_rate_rad_s: float
+    state: str
+    direction_deg: float | None = None
+    speed_limit_m_s: float = 0.0
+    free_m: float | None = None
+    goal_distance_m: float | None = None
+
+    @property
+    def holding(self) -> bool:
+        """Whether the vehicle is to stay where it is (horizontally)."""
+        return self.velocity_ned[0] == 0.0 and self.velocity_ned[1] == 0.0
+
+
+def stopping_speed_m_s(free_m: float, accel_m_s2: float, latency_s: float) -> float:
+    """The largest speed that can still stop within ``free_m`` after a delay of ``latency_s``.
+
+    Solves ``v = sqrt(2 a (d - v t))``.
+    """
+    if free_m <= 0.0:
+        return 0.0
+    a, t = accel_m_s2, latency_s
+    return -a * t + math.sqrt(a * a * t * t + 2.0 * a * free_m)
+
+
+@dataclass
+class Planner:
+    """The planner of one vehicle: its memory, hysteresis and commitment between steps.
+
+    Args:
+        config: The ``avoidance`` section.
+        max_range_m: The sensors' maximum range (a clear bin sees this far).
+    """
+
+    config: AvoidanceConfig
+    max_range_m: float
+    memory: ObstacleMemory = field(init=False)
+    _admissible: np.ndarray = field(init=False)
+    _previous_rad: float | None = None
+    _side: int = 0
+    _dead_end_since_ns: int | None = None
+    _turned_rad: float = 0.0
+    _last_yaw_rad: float = 0.0
+    _last_scan_ns: int = -1
+    _best_goal_m: float = math.inf
+    _best_since_ns: int | None = None
+    _given_up: bool = False
+    _scan_side: float = 1.0
+
+    def __post_init__(self) -> None:
+        self.memory = ObstacleMemory(self.config.memory_s)
+        self.visibility = VisibilityGrid()
+        config = self.config
+        latency_s = config.latency_ms / 1000.0
+        # Beyond the stopping distance at full speed nothing unseen matters yet.
+        self._look_m = (
+            config.max_speed_m_s**2 / (2 * config.max_accel_m_s2)
+            + config.max_speed_m_s * latency_s
+            + 1.0
+        )
+        self._directions = directions_rad()
+        self._admissible = np.zeros(self._directions.size, dtype=np.bool_)
+
+    @property
+    def clearance_m(self) -> float:
+        """Vehicle radius plus margin: how far every obstacle is kept."""
+        return self.config.vehicle_radius_m + self.config.margin_m
+
+    def reset(self) -> None:
+        """Start over for a new goal (memory kept: the obstacles did not move)."""
+        self._admissible[:] = False
+        self._previous_rad = None
+        self._side = 0
+        self._dead_end_since_ns = None
+        self._best_goal_m = math.inf
+        self._best_since_ns = None
+        self._given_up = False
+
+    def observe_scan(
+        self, distance_m: np.ndarray, t_capture_ns: int, pose_at_capture: Pose
+    ) -> None:
+        """Take a fresh merged scan (body bins) with the vehicle's pose at its capture."""
+        if t_capture_ns <= self._last_scan_ns:
+            return
+        self._last_scan_ns = t_capture_ns
+        where = (pose_at_capture.north_m, pose_at_capture.east_m)
+        self.memory.add_scan(
+            distance_m, t_capture_ns, where, pose_at_capture.yaw_rad, self.max_range_m
+        )
+        self.visibility.mark(
+            where, pose_at_capture.yaw_rad, distance_m, t_capture_ns, self.max_range_m
+        )
+
+    def hold(self, state: str, goal_distance_m: float | None = None) -> Decision:
+        """Stay here: zero velocity, no turning."""
+        return Decision((0.0, 0.0, 0.0), 0.0, state, goal_distance_m=goal_distance_m)
+
+    def obstacle_free_m(
+        self, pose: Pose, headings_rad: np.ndarray, buffer_m: float = 0.0
+    ) -> np.ndarray:
+        """Free distance along each heading among the remembered obstacles only.
+
+        Where the vehicle's disc (radius, margin and ``buffer_m``) would meet a remembered
+        obstacle point.
+        """
+        offsets = self.memory.offsets((pose.north_m, pose.east_m))
+        clearance = self.clearance_m + buffer_m
+        if offsets.size:
+            # Already nearer than that to something (pushed by wind, or the buffer is wider
+            # than the corridor): keep at least the distance there is, so that the ways along
+            # or away from it stay open and only the ways toward it close.
+            nearest_m = float(np.min(np.hypot(offsets[:, 0], offsets[:, 1])))
+            inside = max(nearest_m - _INSIDE_SLACK_M, self.config.vehicle_radius_m)
+            clearance = min(clearance, inside)
+        return free_distance(offsets, headings_rad, clearance)
+
+    def free_m(self, pose: Pose, headings_rad: np.ndarray, buffer_m: float = 0.0) -> np.ndarray:
+        """Free distance along each heading from a pose.
+
+        The nearer of :meth:`obstacle_free_m` and, with unknown directions blocked, where the
+        vehicle's corridor reaches ground the cameras have not looked at within the memory
+        time.
+        """
+        free = self.obstacle_free_m(pose, headings_rad, buffer_m)
+        if self.config.unknown == "blocked":
+            # The corridor must have been seen as wide as the vehicle keeps from obstacles (the
+            # turning buffer is about following a path past known ones).
+            since_ns = pose.t_ns - int(self.config.memory_s * 1e9)
+            seen = self.visibility.seen_distance(
+                (pose.north_m, pose.east_m), headings_rad, self.clearance_m, self._look_m, since_ns
+            )
+            free = np.minimum(free, seen)
+        return free
+
+    def decide(self, now_ns: int, pose: Pose, goal: Goal, fresh: bool) -> Decision:
+        """The velocity and yaw rate to command now.
+
+        Args:
+            now_ns: The current time.
+            pose: The vehicle's current state.
+            goal: Where to go.
+            fresh: Whether perception is fresh (else: hold).
+
+        Returns:
+            The decision.
+        """
+        config = self.config
+        self.memory.expire(now_ns)
+        to_north, to_east = goal.north_m - pose.north_m, goal.east_m - pose.east_m
+        goal_m = math.hypot(to_north, to_east)
+        climb = _ALTITUDE_GAIN * (goal.altitude_m + pose.down_m)
+        vertical = -max(-config.climb_rate_m_s, min(config.climb_rate_m_s, climb))
+        if not fresh:
+            return self.hold("stale", goal_m)
+        if goal_m <= config.acceptance_radius_m:
+            self._best_since_ns = None
+            self._dead_end_since_ns = None
+            state = "arrived" if abs(climb) <= _ARRIVED_ALTITUDE_M else "moving"
+            return Decision((0.0, 0.0, vertical), 0.0, state, goal_distance_m=goal_m)
+        if self._no_progress(now_ns, goal_m):
+            return self.hold("no path", goal_m)
+        goal_rad = math.atan2(to_east, to_north)
+        # Directions are chosen with room to spare for the turn the vehicle takes to follow
+        # them (it lags its setpoint by a few tenths of a second): more at speed.
+        buffer = _BUFFER_M + _BUFFER_S * math.hypot(pose.north_m_s, pose.east_m_s)
+        free = self.free_m(pose, self._directions, buffer)
+        enter = max(config.acceptance_radius_m, 1.0)
+        leave = 0.5 * enter
+        self._admissible = np.where(
+            free >= enter, True, np.where(free < leave, False, self._admissible)
+        )
+        goal_free = float(self.free_m(pose, np.array([goal_rad]), buffer)[0])
+        candidates = list(np.flatnonzero(self._admissible))
+        if self._dead_end_since_ns is not None:
+            # While turning to look, only a way toward the goal side ends the search; once the
+            # search is over, any way out will do (backing out of a pocket).
+            toward = [c for c in candidates if abs(wrap_rad(self._directions[c] - goal_rad)) < 1.6]
+            searching = (now_ns - self._dead_end_since_ns) / 1e9 < self.config.dead_end_scan_s
+            candidates = toward if searching else candidates
+        if not candidates:
+            return self._dead_end(now_ns, pose, goal_m, goal_rad)
+        self._dead_end_since_ns = None
+        headings = self._directions[candidates]
+        goal_delta = wrap_rad(headings - goal_rad)
+        cost = MU_GOAL * np.abs(goal_delta)
+        cost += MU_HEADING * np.abs(wrap_rad(headings - pose.yaw_rad))
+        if self._previous_rad is not None:
+            cost += MU_PREVIOUS * np.abs(wrap_rad(headings - self._previous_rad))
+        goal_open = goal_free >= min(goal_m, enter)
+        if goal_open:
+            self._side = 0
+        elif self._side:
+            cost += np.where(np.sign(goal_delta) == -self._side, COMMITMENT_COST, 0.0)
+        best = int(np.argmin(cost))
+        chosen = float(headings[best])
+        chosen_free = float(free[candidates[best]])
+        if goal_open and abs(float(wrap_rad(chosen - goal_rad))) <= math.radians(5.0):
+            # Within a step of the goal direction: head straight for the goal.
+            chosen, chosen_free = goal_rad, goal_free
+        # The speed law counts the free distance without the turning buffer.
+        chosen_free = float(self.free_m(pose, np.array([chosen]))[0])
+        delta = float(wrap_rad(chosen - goal_rad))
+        if not goal_open and abs(delta) > math.radians(2.5):
+            self._side = 1 if delta > 0 else -1
+        self._previous_rad = chosen
+        speed = min(
+            config.max_speed_m_s,
+            stopping_speed_m_s(chosen_free, config.max_accel_m_s2, config.latency_ms / 1000.0),
+            math.sqrt(2.0 * config.max_accel_m_s2 * goal_m),
+        )
+        # The camera looks where the vehicle goes, or, when the way to the goal is only
+        # blocked by what has not been seen, that way first; the vehicle slows down while
+        # its heading differs from its way.
+        look = self._look_direction(pose, goal_rad, chosen, buffer)
+        # its heading differs from its way (the way itself was seen: the speed law counts
+        # only the part of it the cameras looked at).
+        speed *= 0.5 + 0.5 * max(0.0, math.cos(float(wrap_rad(chosen - pose.yaw_rad))))
+        yaw_rate = self._yaw_rate(float(wrap_rad(look - pose.yaw_rad)))
+        velocity = (speed * math.cos(chosen), speed * math.sin(chosen), vertical)
+        return Decision(
+            velocity,
+            yaw_rate,
+            "moving",
+            math.degrees(chosen) % 360.0,
+            speed,
+            chosen_free,
+            goal_m,
+        )
+
+    def _look_direction(
+        self, pose: Pose, goal_rad: float, chosen_rad: float, buffer_m: float
+    ) -> float:
+        """Where to point the cameras: the best way known obstacles leave open.
+
+        That is the chosen way unless the way the planner would take, were unseen space free,
+        differs: then the cameras turn there to look (a forward camera would otherwise only
+        ever turn as far as it sees).
+        """
+        if self.config.unknown != "blocked":
+            return chosen_rad
+        free = self.obstacle_free_m(pose, self._directions, buffer_m)
+        open_ways = np.flatnonzero(free >= max(self.config.acceptance_radius_m, 1.0))
+        if open_ways.size == 0:
+            return chosen_rad
+        headings = self._directions[open_ways]
+        cost = MU_GOAL * np.abs(wrap_rad(headings - goal_rad))
+        cost += MU_HEADING * np.abs(wrap_rad(headings - pose.yaw_rad))
+        return float(headings[int(np.argmin(cost))])
+
+    def _yaw_rate(self, error_rad: float) -> float:
+        limit = math.radians(self.config.max_yaw_rate_deg_s)
+        return max(-limit, min(limit, _YAW_GAIN * error_rad))
+
+    def _no_progress(self, now_ns: int, goal_m: float) -> bool:
+        """Whether the goal has come no nearer (by 0.5 m) for ``no_progress_s``: give up."""
+        if self._given_up:
+            return True
+        if self._best_since_ns is None or goal_m < self._best_goal_m - 0.5:
+            self._best_goal_m = min(goal_m, self._best_goal_m)
+            self._best_since_ns = now_ns
+            return False
+        if (now_ns - self._best_since_ns) / 1e9 >= self.config.no_progress_s:
+            self._given_up = True
+        return self._given_up
+
+    def _dead_end(self, now_ns: int, pose: Pose, goal_m: float, goal_rad: float) -> Decision:
+        """No admissible direction: hold, turn to look (goal side first), then give up."""
+        if self._dead_end_since_ns is None:
+            self._dead_end_since_ns = now_ns
+            self._turned_rad = 0.0
+            self._last_yaw_rad = pose.yaw_rad
+            self._scan_side = 1.0 if float(wrap_rad(goal_rad - pose.yaw_rad)) >= 0 else -1.0
+        self._turned_rad += float(wrap_rad(pose.yaw_rad - self._last_yaw_rad))
+        self._last_yaw_rad = pose.yaw_rad
+        elapsed_s = (now_ns - self._dead_end_since_ns) / 1e9
+        if elapsed_s >= self.config.dead_end_scan_s:
+            return self.hold("no path", goal_m)
+        # The first half turning toward the goal side up to 180 degrees, then the other way.
+        first = elapsed_s < self.config.dead_end_scan_s / 2.0
+        target = math.pi * self._scan_side * (1.0 if first else -1.0)
+        rate = math.radians(self.config.max_yaw_rate_deg_s)
+        yaw_rate = max(-rate, min(rate, _YAW_GAIN * (target - self._turned_rad)))
+        return Decision((0.0, 0.0, 0.0), yaw_rate, "dead end", goal_distance_m=goal_m)

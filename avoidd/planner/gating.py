@@ -1,0 +1,58 @@
+"""When setpoints may go out: never fight the pilot, never fly on stale perception.
+
+A pure rule over the facts the daemon (and the simulator) know each cycle.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from enum import Enum
+
+
+class Gate(Enum):
+    """What to do this cycle."""
+
+    SILENT = "silent"
+    """Send nothing: avoidance off, link down, disarmed, no goal, or a mode that does not
+    take setpoints (the pilot or the autopilot flies)."""
+    PRESTREAM = "prestream"
+    """PX4 not yet in OFFBOARD: stream hold-here setpoints so that it can be switched."""
+    HOLD = "hold"
+    """In a setpoint mode but perception is stale: an explicit zero velocity (ArduPilot drops
+    a velocity command after 3 s, so silence is no hold)."""
+    PLAN = "plan"
+    """Fly the planner's decision."""
+
+
+@dataclass(frozen=True)
+class Facts:
+    """What is known this cycle.
+
+    Attributes:
+        enabled: Avoidance is on (config, or the AVD_ENABLE parameter).
+        link_up: The autopilot's heartbeat is fresh.
+        armed: The vehicle is armed.
+        setpoint_mode: Its mode takes setpoints (GUIDED, GUIDED_NOGPS, OFFBOARD).
+        px4: The autopilot is PX4.
+        goal: A goal is active.
+        fresh: Perception is fresh.
+        prestream: ``avoidance.px4_prestream``.
+    """
+
+    enabled: bool
+    link_up: bool
+    armed: bool
+    setpoint_mode: bool
+    px4: bool
+    goal: bool
+    fresh: bool
+    prestream: bool = True
+
+
+def gate(facts: Facts) -> Gate:
+    """The rule: silent unless avoidance may fly; hold on stale perception; else plan."""
+    if not (facts.enabled and facts.link_up and facts.armed and facts.goal):
+        return Gate.SILENT
+    if not facts.setpoint_mode:
+        return Gate.PRESTREAM if facts.px4 and facts.prestream else Gate.SILENT
+    return Gate.PLAN if facts.fresh else Gate.HOLD

@@ -1,0 +1,53 @@
+"""Free distance along a direction for a round vehicle among obstacle points (local NED)."""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import numpy.typing as npt
+
+Array = npt.NDArray[np.float64]
+
+DIRECTION_COUNT = 72
+DIRECTION_STEP_DEG = 5.0
+
+
+def directions_rad() -> Array:
+    """The planner's 72 world directions: bearing 5 k degrees from north, clockwise."""
+    return np.asarray(np.radians(np.arange(DIRECTION_COUNT) * DIRECTION_STEP_DEG), np.float64)
+
+
+def wrap_rad(angle: Array | float) -> Array:
+    """Angles wrapped into (-pi, pi]."""
+    return np.asarray(-(np.remainder(-np.asarray(angle) + math.pi, 2 * math.pi) - math.pi))
+
+
+def free_distance(offsets_ne: Array, headings_rad: Array, clearance_m: float) -> Array:
+    """How far the vehicle can go along each heading before it is ``clearance_m`` from a point.
+
+    This is the VFH+ enlargement, exact for a disc: a point at distance ``d`` blocks the
+    headings within ``asin(clearance / d)`` of its bearing.
+
+    Args:
+        offsets_ne: (N, 2) obstacle points relative to the vehicle, north and east (metres).
+        headings_rad: (K,) headings, radians from north, clockwise.
+        clearance_m: Vehicle radius plus margin.
+
+    Returns:
+        (K,) distances; 0 toward a point already within the clearance, ``inf`` when nothing
+        is in the way.
+    """
+    if offsets_ne.size == 0:
+        return np.full(headings_rad.shape, np.inf)
+    unit = np.stack([np.cos(headings_rad), np.sin(headings_rad)], axis=1)  # (K, 2)
+    along = unit @ offsets_ne.T  # (K, N)
+    across = unit[:, 0:1] * offsets_ne[:, 1] - unit[:, 1:2] * offsets_ne[:, 0]
+    reach = clearance_m * clearance_m - across * across
+    with np.errstate(invalid="ignore"):
+        contact = along - np.sqrt(np.maximum(reach, 0.0))
+    # Only points the swept disc meets ahead block a heading; one already within the
+    # clearance blocks the headings toward it (free 0), never those away from it.
+    blocking = (reach > 0) & (along > 0)
+    distance = np.where(blocking, np.maximum(contact, 0.0), np.inf)
+    return np.asarray(distance.min(axis=1))

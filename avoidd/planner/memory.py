@@ -1,0 +1,109 @@
+"""Obstacle memory in the local frame: what the cameras saw, kept while it is out of view.
+
+Each fresh scan adds its readings as points in the autopilot's local frame (north, east), placed
+with the vehicle's position and yaw at the scan's capture time. A reading that later sees past
+a remembered point (a nearer measurement, or clear, in the same direction) removes it; points
+older than the memory time are dropped. Free space is never remembered: a direction nobody
+measured now is unknown, whatever it was.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import numpy as np
+import numpy.typing as npt
+
+from avoidd.planner.geometry import wrap_rad
+from avoidd.types import SECTOR_COUNT, SECTOR_WIDTH_DEG
+
+Array = npt.NDArray[np.float64]
+
+_SEE_PAST_M = 0.3
+"""A remembered point is gone only when a new reading sees this far beyond it."""
+
+
+@dataclass
+class ObstacleMemory:
+    """Remembered obstacle points.
+
+    Args:
+        memory_s: How long a point is kept after it was last measured.
+        max_points: At most this many points (the oldest go first).
+    """
+
+    memory_s: float
+    max_points: int = 4000
+    north_east: Array = field(default_factory=lambda: np.empty((0, 2)))
+    t_ns: npt.NDArray[np.int64] = field(default_factory=lambda: np.empty(0, dtype=np.int64))
+
+    def clear(self) -> None:
+        """Forget everything."""
+        self.north_east = np.empty((0, 2))
+        self.t_ns = np.empty(0, dtype=np.int64)
+
+    def add_scan(
+        self,
+        distance_m: npt.NDArray[np.floating],
+        t_capture_ns: int,
+        north_east_m: tuple[float, float],
+        yaw_rad: float,
+        max_range_m: float,
+    ) -> None:
+        """Take one scan (body bins: 72 distances, NaN unknown, ``inf`` clear).
+
+        Args:
+            distance_m: The scan's distances.
+            t_capture_ns: Its capture time.
+            north_east_m: Vehicle position at capture.
+            yaw_rad: Vehicle yaw at capture.
+            max_range_m: Range that counts as seen through for a clear bin.
+        """
+        origin = np.asarray(north_east_m, dtype=np.float64)
+        distance = np.asarray(distance_m, dtype=np.float64)
+        bearing = yaw_rad + np.radians(np.arange(SECTOR_COUNT) * SECTOR_WIDTH_DEG)
+        measured = ~np.isnan(distance)
+        seen_to = np.where(np.isposinf(distance), max_range_m, distance)
+        if self.t_ns.size:
+            offset = self.north_east - origin
+            at = np.hypot(offset[:, 0], offset[:, 1])
+            bin_of = bearing_bins(np.arctan2(offset[:, 1], offset[:, 0]), yaw_rad)
+            seen_past = measured[bin_of] & (seen_to[bin_of] > at + _SEE_PAST_M)
+            keep = ~seen_past
+            self.north_east, self.t_ns = self.north_east[keep], self.t_ns[keep]
+        finite = np.isfinite(distance)
+        if finite.any():
+            new = origin + np.stack(
+                [
+                    distance[finite] * np.cos(bearing[finite]),
+                    distance[finite] * np.sin(bearing[finite]),
+                ],
+                axis=1,
+            )
+            self.north_east = np.concatenate([self.north_east, new])
+            self.t_ns = np.concatenate(
+                [self.t_ns, np.full(int(finite.sum()), t_capture_ns, dtype=np.int64)]
+            )
+        if self.t_ns.size > self.max_points:
+            self.north_east = self.north_east[-self.max_points :]
+            self.t_ns = self.t_ns[-self.max_points :]
+
+    def expire(self, now_ns: int) -> None:
+        """Drop points older than the memory time."""
+        keep = now_ns - self.t_ns <= int(self.memory_s * 1e9)
+        self.north_east, self.t_ns = self.north_east[keep], self.t_ns[keep]
+
+    def offsets(self, north_east_m: tuple[float, float]) -> Array:
+        """The remembered points relative to a position, (N, 2) north and east."""
+        return self.north_east - np.asarray(north_east_m, dtype=np.float64)
+
+
+def bearing_bins(heading_rad: Array, yaw_rad: float) -> npt.NDArray[np.int64]:
+    """The body bin (5 degrees, bin 0 ahead) that each world heading falls in at a yaw."""
+    body = wrap_rad(heading_rad - yaw_rad)
+    return np.asarray(
+        np.floor(np.remainder(np.degrees(body) / SECTOR_WIDTH_DEG + 0.5, SECTOR_COUNT)).astype(
+            np.int64
+        )
+        % SECTOR_COUNT
+    )

@@ -1,0 +1,141 @@
+"""Where the cameras have looked lately: a grid of last-seen times in the local frame.
+
+A direction is only as free as what was seen along it. Each scan marks the cells its measured
+bins looked through (up to the reading, or to the maximum range when clear) with the scan's
+capture time. The corridor the vehicle would sweep along a heading (as wide as radius plus
+margin on each side) is free only as far as every cell of it was seen within the memory time:
+beside the vehicle that is what it saw on its way there, ahead it is what the cameras see now.
+A forward camera thus cannot send the vehicle sideways into what it never looked at.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+import numpy.typing as npt
+
+from avoidd.types import SECTOR_WIDTH_DEG
+
+Array = npt.NDArray[np.float64]
+
+_RAYS_PER_BIN = 7
+_NEVER = np.iinfo(np.int64).min // 2
+
+
+class VisibilityGrid:
+    """Last-seen time of every cell of a square around a centre that follows the vehicle.
+
+    Args:
+        cell_m: Cell size.
+        half_size_m: Half the side of the square.
+    """
+
+    def __init__(self, cell_m: float = 0.25, half_size_m: float = 40.0) -> None:
+        self.cell_m = cell_m
+        self.cells = round(2 * half_size_m / cell_m)
+        self.seen_ns = np.full((self.cells, self.cells), _NEVER, dtype=np.int64)
+        self.centre = np.zeros(2)
+        self._half = half_size_m
+
+    def clear(self) -> None:
+        """Forget everything."""
+        self.seen_ns[:] = _NEVER
+
+    def _follow(self, north_east: Array) -> None:
+        """Shift the grid so that a position stays well inside it."""
+        offset = north_east - self.centre
+        if np.all(np.abs(offset) < self._half / 2):
+            return
+        shift = np.round(offset / self.cell_m).astype(np.int64)
+        moved = np.full_like(self.seen_ns, _NEVER)
+        n, e = int(shift[0]), int(shift[1])
+        size = self.cells
+        src_n = slice(max(n, 0), size + min(n, 0))
+        dst_n = slice(max(-n, 0), size + min(-n, 0))
+        src_e = slice(max(e, 0), size + min(e, 0))
+        dst_e = slice(max(-e, 0), size + min(-e, 0))
+        if abs(n) < size and abs(e) < size:
+            moved[dst_n, dst_e] = self.seen_ns[src_n, src_e]
+        self.seen_ns = moved
+        self.centre = self.centre + shift * self.cell_m
+
+    def _index(
+        self, points: Array
+    ) -> tuple[npt.NDArray[np.int64], npt.NDArray[np.int64], npt.NDArray[np.bool_]]:
+        cell = np.floor((points - self.centre) / self.cell_m + self.cells / 2).astype(np.int64)
+        inside = np.all((cell >= 0) & (cell < self.cells), axis=-1)
+        cell = np.clip(cell, 0, self.cells - 1)
+        return cell[..., 0], cell[..., 1], inside
+
+    def mark(
+        self,
+        north_east_m: tuple[float, float],
+        yaw_rad: float,
+        distance_m: npt.NDArray[np.floating],
+        t_ns: int,
+        max_range_m: float,
+    ) -> None:
+        """Mark what one scan (72 body bins) looked through, from where it was taken."""
+        origin = np.asarray(north_east_m, dtype=np.float64)
+        self._follow(origin)
+        distance = np.asarray(distance_m, dtype=np.float64)
+        measured = np.flatnonzero(~np.isnan(distance))
+        if measured.size == 0:
+            return
+        reach = np.where(np.isposinf(distance[measured]), max_range_m, distance[measured])
+        # Up to the surface hit: its cell was seen too (what lies behind it was not).
+        reach = np.minimum(reach, max_range_m)
+        spread = (np.arange(_RAYS_PER_BIN) + 0.5) / _RAYS_PER_BIN - 0.5
+        bearing = (
+            yaw_rad + np.radians((measured[:, None] + spread[None, :]) * SECTOR_WIDTH_DEG).ravel()
+        )
+        reach = np.repeat(reach, _RAYS_PER_BIN)
+        steps = np.arange(0.0, max_range_m, self.cell_m * 0.7)
+        along = steps[None, :]
+        keep = along <= reach[:, None]
+        points = origin + np.stack(
+            [along * np.cos(bearing)[:, None], along * np.sin(bearing)[:, None]], axis=-1
+        )
+        rows, columns, inside = self._index(points[keep])
+        rows, columns = rows[inside], columns[inside]
+        self.seen_ns[rows, columns] = np.maximum(self.seen_ns[rows, columns], t_ns)
+
+    def seen_distance(
+        self,
+        north_east_m: tuple[float, float],
+        headings_rad: Array,
+        clearance_m: float,
+        look_m: float,
+        since_ns: int,
+    ) -> Array:
+        """How far along each heading the swept corridor was all seen since ``since_ns``.
+
+        Args:
+            north_east_m: The vehicle's position.
+            headings_rad: (K,) headings.
+            clearance_m: Half-width of the corridor (radius plus margin).
+            look_m: How far to look (beyond it: ``inf``).
+            since_ns: Cells seen before this are unknown.
+
+        Returns:
+            (K,) distances the vehicle can go before its disc reaches an unseen cell.
+        """
+        origin = np.asarray(north_east_m, dtype=np.float64)
+        self._follow(origin)
+        along = np.arange(0.0, look_m + clearance_m, self.cell_m)
+        lateral = np.linspace(-clearance_m, clearance_m, 5)
+        unit = np.stack([np.cos(headings_rad), np.sin(headings_rad)], axis=1)  # (K, 2)
+        normal = np.stack([-unit[:, 1], unit[:, 0]], axis=1)
+        points = (
+            origin
+            + along[None, :, None, None] * unit[:, None, None, :]
+            + lateral[None, None, :, None] * normal[:, None, None, :]
+        )  # (K, S, L, 2)
+        rows, columns, inside = self._index(points)
+        unseen = (self.seen_ns[rows, columns] < since_ns) | ~inside
+        # The vehicle's own disc (within the clearance of where it stands) is where it is.
+        own = (along[None, :, None] ** 2 + lateral[None, None, :] ** 2) <= clearance_m**2
+        unseen &= ~own
+        first = np.argmax(unseen.any(axis=2), axis=1)
+        blocked = unseen.any(axis=(1, 2))
+        distance = np.where(blocked, np.maximum(along[first] - clearance_m, 0.0), np.inf)
+        return np.asarray(distance, dtype=np.float64)

@@ -1,0 +1,539 @@
+"""A fast stereo renderer for simulated worlds: rectified grey pairs and the left view's depth.
+
+Every pixel's ray is intersected analytically with the ground, the tree line and, inside the
+screen window each obstacle covers, with that obstacle (slabs for a yawed box, a quadratic for
+a cylinder): depth is exact, and the work per obstacle is the size it has on screen.
+
+Texture is looked up rather than computed: one periodic, band-limited noise pattern (a
+``1/f`` spectrum, like bark, concrete or grass from afar) is prepared once as a mip pyramid
+built in the frequency domain, so every level is exactly periodic and free of aliasing. Each
+surface shows it at its own offset, in its own coordinates in metres; each pixel reads the two
+levels around its footprint on the surface (trilinear, through ``cv2.remap``), so both views
+see the same pattern at every distance, as a real camera sees a real surface. Untextured
+surfaces get a flat shade (the pipeline's texture gate must cope with them).
+
+Measured by ``avoidd bench --sim-render`` (see ``docs/simulation.md``).
+"""
+
+from __future__ import annotations
+
+import functools
+import math
+from dataclasses import dataclass
+from typing import Any
+
+import cv2
+import numpy as np
+import numpy.typing as npt
+
+from avoidd.perception.frames import camera_to_level
+from avoidd.sim.world import SimBox, SimCylinder, World
+from avoidd.types import FloatArray, GroundTruth, Image, Mount, RectifiedRig
+
+AnyFloat = npt.NDArray[np.floating[Any]]
+
+SKY_ID = 0
+GROUND_ID = 1
+TREELINE_ID = 2
+FIRST_OBSTACLE_ID = 3
+
+TEXEL_M = 0.004
+"""Size of one texel of the finest level."""
+_TEXTURE_SIZE = 2048
+_TREELINE_HEIGHT_M = 14.0
+_NEAR_M = 0.05
+_REMAP_ROW = 1024
+_NOISE_FIELDS = 6
+_SUN_NED = np.array([-0.45, -0.35, 0.82]) / np.linalg.norm([0.45, 0.35, 0.82])
+"""Direction the sunlight travels (down, from the north-east)."""
+
+
+@functools.lru_cache(maxsize=1)
+def texture_pyramid() -> tuple[npt.NDArray[np.float32], ...]:
+    """The noise pattern's mip levels, finest first, values around 0.5 (periodic in both axes).
+
+    Level ``k`` holds the spectrum's lowest ``size / 2**k`` frequencies, so sampling it where a
+    pixel covers ``2**k`` texels shows nothing finer than the pixel.
+    """
+    size = _TEXTURE_SIZE
+    rng = np.random.default_rng(20260101)
+    fy = np.fft.fftfreq(size)[:, None]
+    fx = np.fft.fftfreq(size)[None, :]
+    radius = np.hypot(fx, fy)
+    amplitude = np.where(radius > 0, 1.0 / np.maximum(radius, 1.0 / size), 0.0)
+    spectrum = amplitude * np.exp(2j * np.pi * rng.random((size, size)))
+    levels: list[npt.NDArray[np.float32]] = []
+    scale = 0.0
+    n = size
+    while n >= 8:
+        half = n // 2
+        # The lowest n x n frequencies (fft order: positive first, then negative).
+        keep = np.concatenate([np.arange(half), np.arange(size - half, size)])
+        block = spectrum[np.ix_(keep, keep)]
+        pattern = np.real(np.fft.ifft2(block)) * (n * n) / (size * size)
+        if not levels:
+            scale = 0.22 / float(np.std(pattern))
+        levels.append(np.asarray(0.5 + scale * pattern, dtype=np.float32))
+        n //= 2
+    return tuple(levels)
+
+
+@dataclass(frozen=True)
+class _SurfaceTable:
+    """Per surface id: offset of its texture (texels), albedo, whether textured."""
+
+    offset_x: npt.NDArray[np.float32]
+    offset_y: npt.NDArray[np.float32]
+    albedo: npt.NDArray[np.float32]
+    textured: npt.NDArray[np.bool_]
+
+
+class RenderedStereo:
+    """One rendered pair: 8-bit grey views and the left view's exact geometry."""
+
+    def __init__(self, left: Image, right: Image, depth_m: FloatArray, ids: npt.NDArray[np.int16]):
+        self.left = left
+        self.right = right
+        self.depth_m = depth_m
+        self.ids = ids
+
+    def truth(self) -> GroundTruth:
+        """The left view's depth and surface ids as the pipeline's ground truth (no points)."""
+        points = np.full((*self.depth_m.shape, 3), np.nan, dtype=np.float32)
+        return GroundTruth(self.depth_m, self.ids, points)
+
+
+def camera_pose(
+    mount: Mount,
+    north_m: float,
+    east_m: float,
+    down_m: float,
+    yaw_rad: float,
+    roll_deg: float,
+    pitch_deg: float,
+) -> tuple[FloatArray, FloatArray]:
+    """The left camera's rotation (optical to NED) and centre (NED) for a vehicle state."""
+    level = camera_to_level(mount, roll_deg, pitch_deg)
+    c, s = math.cos(yaw_rad), math.sin(yaw_rad)
+    heading = np.array([[c, -s, 0.0], [s, c, 0.0], [0.0, 0.0, 1.0]])
+    rotation = heading @ np.asarray(level.rotation, dtype=np.float64)
+    centre = np.array([north_m, east_m, down_m]) + heading @ np.asarray(level.translation)
+    return rotation, centre
+
+
+class _Hits:
+    """Per-pixel nearest hit so far: depth, surface, surface coordinates, shading terms."""
+
+    def __init__(self, shape: tuple[int, int]) -> None:
+        self.t = np.full(shape, np.inf, dtype=np.float32)
+        self.ids = np.zeros(shape, dtype=np.int16)
+        self.s = np.zeros(shape, dtype=np.float32)
+        self.u = np.zeros(shape, dtype=np.float32)
+        self.cos = np.ones(shape, dtype=np.float32)
+        self.light = np.ones(shape, dtype=np.float32)
+
+    def offer(
+        self,
+        window: tuple[slice, slice],
+        t: AnyFloat,
+        surface_id: int,
+        s: AnyFloat,
+        u: AnyFloat,
+        cos: AnyFloat,
+        light: AnyFloat | float,
+    ) -> None:
+        """Keep the offered hits (``inf`` where none) that are nearer than what is there."""
+        nearer = t < self.t[window]
+        if not nearer.any():
+            return
+        self.t[window][nearer] = t[nearer]
+        self.ids[window][nearer] = surface_id
+        self.s[window][nearer] = s[nearer]
+        self.u[window][nearer] = u[nearer]
+        self.cos[window][nearer] = cos[nearer]
+        light_array = np.broadcast_to(np.asarray(light, dtype=np.float32), t.shape)
+        self.light[window][nearer] = light_array[nearer]
+
+
+def _light(normal_ned: FloatArray) -> FloatArray:
+    """Lambert shading with an ambient floor (normals: (..., 3))."""
+    return np.asarray(0.55 + 0.45 * np.clip(normal_ned @ -_SUN_NED, 0.0, 1.0), dtype=np.float32)
+
+
+class StereoRenderer:
+    """Renders one head's rectified pair of a world from any vehicle state.
+
+    Args:
+        world: The world.
+        rig: The head's rectified rig (``doffs_px`` must be 0).
+        mount: The head's mount on the vehicle.
+        noise_std: Sensor noise in grey levels.
+    """
+
+    def __init__(
+        self, world: World, rig: RectifiedRig, mount: Mount, noise_std: float = 1.0
+    ) -> None:
+        if rig.doffs_px != 0.0:
+            raise ValueError("the simulator renders rigs with doffs = 0 only")
+        self.world = world
+        self.rig = rig
+        self.mount = mount
+        self.noise_std = noise_std
+        self._levels = texture_pyramid()
+        v, u = np.mgrid[0 : rig.height, 0 : rig.width].astype(np.float64)
+        self._optical = np.stack(
+            [(u - rig.cx) / rig.fx, (v - rig.cy) / rig.fy, np.ones_like(u)], axis=-1
+        )
+        self._ray_length = np.linalg.norm(self._optical, axis=-1).astype(np.float32)
+        rng = np.random.default_rng(world.seed)
+        count = FIRST_OBSTACLE_ID + len(world.obstacles)
+        albedo = np.concatenate([[0.0, 0.5, 0.42], rng.uniform(0.45, 0.75, len(world.obstacles))])
+        self._surface_table = _SurfaceTable(
+            offset_x=rng.uniform(0, _TEXTURE_SIZE, count).astype(np.float32),
+            offset_y=rng.uniform(0, _TEXTURE_SIZE, count).astype(np.float32),
+            albedo=albedo.astype(np.float32),
+            textured=np.array([False, True, True] + [o.textured for o in world.obstacles]),
+        )
+        # A small bank of noise fields, drawn from per frame (drawing fresh Gaussian noise
+        # for every pixel costs as much as rendering).
+        noise_rng = np.random.default_rng(world.seed + 1)
+        self._noise = [
+            noise_rng.normal(0.0, noise_std, (rig.height, rig.width)).astype(np.float32)
+            for _ in range(_NOISE_FIELDS)
+        ]
+
+    def render(
+        self,
+        north_m: float,
+        east_m: float,
+        down_m: float,
+        yaw_rad: float,
+        roll_deg: float = 0.0,
+        pitch_deg: float = 0.0,
+        rng: np.random.Generator | None = None,
+    ) -> RenderedStereo:
+        """Both views from a vehicle state (local NED, attitude in degrees).
+
+        Args:
+            north_m: Vehicle position.
+            east_m: Vehicle position.
+            down_m: Vehicle position (negative above the ground).
+            yaw_rad: Heading.
+            roll_deg: Roll, positive right side down.
+            pitch_deg: Pitch, positive nose up.
+            rng: Source of sensor noise (None: no noise).
+
+        Returns:
+            The pair and the left view's depth (``inf`` for sky) and surface ids.
+        """
+        rotation, centre = camera_pose(
+            self.mount, north_m, east_m, down_m, yaw_rad, roll_deg, pitch_deg
+        )
+        rays = (self._optical @ rotation.T).astype(np.float32)
+        left = self._view(rays, rotation, centre)
+        right_centre = centre + self.rig.baseline_m * rotation[:, 0]
+        right = self._view(rays, rotation, right_centre)
+        noise: list[FloatArray | None] = [None, None]
+        if rng is not None and self.noise_std > 0:
+            picks = rng.choice(len(self._noise), size=2, replace=False)
+            noise = [self._noise[int(i)] for i in picks]
+        return RenderedStereo(
+            self._shade(left, rays, self._ray_length, noise[0]),
+            self._shade(right, rays, self._ray_length, noise[1]),
+            left.t,
+            left.ids,
+        )
+
+    # --- geometry --------------------------------------------------------------------------
+
+    def _view(self, rays: FloatArray, rotation: FloatArray, centre: FloatArray) -> _Hits:
+        shape = (self.rig.height, self.rig.width)
+        hits = _Hits(shape)
+        everywhere = (slice(None), slice(None))
+        cn, ce, cd = (float(x) for x in centre)
+        rn, re, rd = rays[..., 0], rays[..., 1], rays[..., 2]
+        if cd < 0:
+            with np.errstate(divide="ignore", invalid="ignore"):
+                t = np.where(rd > 1e-6, -cd / rd, np.inf).astype(np.float32)
+            hits.offer(
+                everywhere,
+                t,
+                GROUND_ID,
+                cn + t * rn,
+                ce + t * re,
+                np.abs(rd) / self._ray_length,
+                float(_light(np.array([0.0, 0.0, -1.0]))),
+            )
+        radius = self.world.treeline_m
+        if radius is not None and math.hypot(cn, ce) < radius:
+            rows = self._treeline_rows(rays, centre, radius)
+            self._cylinder(
+                hits,
+                rows,
+                rays[rows],
+                centre,
+                (0.0, 0.0),
+                radius,
+                _TREELINE_HEIGHT_M,
+                TREELINE_ID,
+                inside=True,
+            )
+        for index, obstacle in enumerate(self.world.obstacles):
+            window = self._window(obstacle, rotation, centre)
+            if window is None:
+                continue
+            surface_id = FIRST_OBSTACLE_ID + index
+            if isinstance(obstacle, SimCylinder):
+                self._cylinder(
+                    hits,
+                    window,
+                    rays[window],
+                    centre,
+                    (obstacle.north_m, obstacle.east_m),
+                    obstacle.radius_m,
+                    obstacle.height_m,
+                    surface_id,
+                    inside=False,
+                )
+            else:
+                self._box(hits, window, rays[window], centre, obstacle, surface_id)
+        return hits
+
+    def _treeline_rows(
+        self, rays: FloatArray, centre: FloatArray, radius_m: float
+    ) -> tuple[slice, slice]:
+        """The rows whose rays can meet the tree line (it spans a band of elevations)."""
+        off_m = math.hypot(float(centre[0]), float(centre[1]))
+        height_m = -float(centre[2])
+        nearest_m, farthest_m = radius_m - off_m, radius_m + off_m
+        low = (
+            math.atan2(-height_m, nearest_m) if height_m > 0 else math.atan2(-height_m, farthest_m)
+        )
+        top = _TREELINE_HEIGHT_M - height_m
+        high = math.atan2(top, nearest_m) if top > 0 else math.atan2(top, farthest_m)
+        # Elevation along each row is extreme at its ends or its middle.
+        columns = [0, self.rig.width // 2, self.rig.width - 1]
+        sample = rays[:, columns, :]
+        elevation = np.arctan2(-sample[..., 2], np.hypot(sample[..., 0], sample[..., 1]))
+        inside = (elevation.max(axis=1) >= low - 0.01) & (elevation.min(axis=1) <= high + 0.01)
+        found = np.flatnonzero(inside)
+        if found.size == 0:
+            return slice(0, 0), slice(None)
+        return slice(int(found[0]), int(found[-1]) + 1), slice(None)
+
+    def _window(
+        self, obstacle: SimBox | SimCylinder, rotation: FloatArray, centre: FloatArray
+    ) -> tuple[slice, slice] | None:
+        """The screen rectangle the obstacle can cover (None: out of view)."""
+        if isinstance(obstacle, SimCylinder):
+            half_n = half_e = obstacle.radius_m
+        else:
+            c, s = abs(math.cos(obstacle.yaw_rad)), abs(math.sin(obstacle.yaw_rad))
+            half_n = obstacle.half_length_m * c + obstacle.half_width_m * s
+            half_e = obstacle.half_length_m * s + obstacle.half_width_m * c
+        corners = np.array(
+            [
+                (obstacle.north_m + a * half_n, obstacle.east_m + b * half_e, -h)
+                for a in (-1, 1)
+                for b in (-1, 1)
+                for h in (0.0, obstacle.height_m)
+            ]
+        )
+        optical = (corners - centre) @ rotation  # rows: corners in the camera frame
+        z = optical[:, 2]
+        rig = self.rig
+        if (z <= _NEAR_M).all():
+            return None
+        if (z <= _NEAR_M).any():
+            # Partly behind the camera: its projection is unbounded; take the whole view.
+            return slice(None), slice(None)
+        u = rig.fx * optical[:, 0] / z + rig.cx
+        v = rig.fy * optical[:, 1] / z + rig.cy
+        u0, u1 = max(math.floor(float(u.min())), 0), min(math.ceil(float(u.max())) + 1, rig.width)
+        v0, v1 = max(math.floor(float(v.min())), 0), min(math.ceil(float(v.max())) + 1, rig.height)
+        if u0 >= u1 or v0 >= v1:
+            return None
+        return slice(v0, v1), slice(u0, u1)
+
+    def _cylinder(
+        self,
+        hits: _Hits,
+        window: tuple[slice, slice],
+        rays: FloatArray,
+        centre: FloatArray,
+        axis_ne: tuple[float, float],
+        radius_m: float,
+        height_m: float,
+        surface_id: int,
+        inside: bool,
+    ) -> None:
+        on, oe = float(centre[0]) - axis_ne[0], float(centre[1]) - axis_ne[1]
+        rn, re, rd = rays[..., 0], rays[..., 1], rays[..., 2]
+        a = rn * rn + re * re
+        b = on * rn + oe * re
+        c = on * on + oe * oe - radius_m * radius_m
+        disc = b * b - a * c
+        with np.errstate(divide="ignore", invalid="ignore"):
+            root = np.sqrt(np.maximum(disc, 0.0))
+            t = ((-b + root) if inside else (-b - root)) / a
+        down = float(centre[2]) + t * rd
+        hit = (disc > 0) & (t > _NEAR_M) & (down <= 0.0) & (down >= -height_m)
+        t = np.where(hit, t, np.inf).astype(np.float32)
+        pn, pe = on + t * rn, oe + t * re
+        with np.errstate(invalid="ignore"):
+            arc = np.arctan2(pe, pn) * radius_m
+            normal_n, normal_e = pn / radius_m, pe / radius_m
+            cos = np.abs(normal_n * rn + normal_e * re) / np.sqrt(a + rd * rd)
+        with np.errstate(invalid="ignore"):
+            sunward = -(normal_n * _SUN_NED[0] + normal_e * _SUN_NED[1])
+        light = 0.55 + 0.45 * np.clip(sunward, 0, 1)
+        if inside:
+            light = np.float32(0.8)  # the tree line: lit from the inside, evenly
+        hits.offer(window, t, surface_id, arc, down, cos, light)
+
+    def _box(
+        self,
+        hits: _Hits,
+        window: tuple[slice, slice],
+        rays: FloatArray,
+        centre: FloatArray,
+        box: SimBox,
+        surface_id: int,
+    ) -> None:
+        co, si = math.cos(box.yaw_rad), math.sin(box.yaw_rad)
+        on, oe, od = float(centre[0]) - box.north_m, float(centre[1]) - box.east_m, float(centre[2])
+        # Into the box frame: along its length, across it, down.
+        pa, pc = on * co + oe * si, -on * si + oe * co
+        ra = rays[..., 0] * co + rays[..., 1] * si
+        rc = -rays[..., 0] * si + rays[..., 1] * co
+        rd = rays[..., 2]
+        slabs = (
+            (pa, ra, box.half_length_m, -box.half_length_m),
+            (pc, rc, box.half_width_m, -box.half_width_m),
+            (od, rd, 0.0, -box.height_m),
+        )
+        t_in = np.full(ra.shape, -np.inf, dtype=np.float32)
+        t_out = np.full(ra.shape, np.inf, dtype=np.float32)
+        face = np.zeros(ra.shape, dtype=np.int8)
+        for axis, (p, r, high, low) in enumerate(slabs):
+            with np.errstate(divide="ignore", invalid="ignore"):
+                t0 = (low - p) / r
+                t1 = (high - p) / r
+            near = np.minimum(t0, t1)
+            far = np.maximum(t0, t1)
+            # A ray parallel to the slab is inside it for every t, or for none.
+            near = np.where(r == 0, -np.inf if low <= p <= high else np.inf, near)
+            far = np.where(r == 0, np.inf if low <= p <= high else -np.inf, far)
+            entering = near > t_in
+            face = np.where(entering, axis, face).astype(np.int8)
+            t_in = np.maximum(t_in, near)
+            t_out = np.minimum(t_out, far)
+        hit = (t_in <= t_out) & (t_in > _NEAR_M)
+        t = np.where(hit, t_in, np.inf).astype(np.float32)
+        a = pa + t * ra
+        c = pc + t * rc
+        d = od + t * rd
+        length = np.sqrt(ra * ra + rc * rc + rd * rd)
+        s = np.where(face == 0, c, a)
+        u = np.where(face == 2, c, d)
+        r_face = np.where(face == 0, ra, np.where(face == 1, rc, rd))
+        cos = np.abs(r_face) / length
+        # Outward normals of the faces the rays can enter (the bottom lies on the ground).
+        sign_a = np.sign(-ra)
+        sign_c = np.sign(-rc)
+        normals = np.array(
+            [
+                _light(np.array([co, si, 0.0])),
+                _light(np.array([-co, -si, 0.0])),
+                _light(np.array([-si, co, 0.0])),
+                _light(np.array([si, -co, 0.0])),
+                _light(np.array([0.0, 0.0, -1.0])),
+            ]
+        )
+        light = np.where(
+            face == 0,
+            np.where(sign_a > 0, normals[0], normals[1]),
+            np.where(face == 1, np.where(sign_c > 0, normals[2], normals[3]), normals[4]),
+        )
+        hits.offer(window, t, surface_id, s, u, cos, light)
+
+    # --- shading ---------------------------------------------------------------------------
+
+    def _shade(
+        self, hits: _Hits, rays: FloatArray, ray_length: FloatArray, noise: FloatArray | None
+    ) -> Image:
+        ids = hits.ids
+        surfaces = self._surface_table
+        # Every pixel is computed as if textured (sky and flat ones are overwritten after):
+        # whole-image arithmetic is cheaper than selecting the pixels first.
+        distance = hits.t * ray_length
+        with np.errstate(invalid="ignore", over="ignore"):
+            footprint_texels = distance / np.float32(self.rig.fx * TEXEL_M)
+            footprint_texels /= np.sqrt(np.maximum(hits.cos, np.float32(0.02)))
+        top = np.float32(len(self._levels) - 1.001)
+        lod = np.log2(np.clip(footprint_texels, 1.0, 2.0**top))
+        x = _wrap(hits.s * np.float32(1.0 / TEXEL_M) + surfaces.offset_x[ids])
+        y = _wrap(hits.u * np.float32(1.0 / TEXEL_M) + surfaces.offset_y[ids])
+        pattern = self._sample(x, y, lod)
+        value = surfaces.albedo[ids] * hits.light * (0.35 + 1.3 * pattern)
+        flat = ~surfaces.textured[ids]
+        value = np.where(flat, 0.8 * surfaces.albedo[ids] * hits.light, value)
+        sky = ids == SKY_ID
+        value = np.where(sky, 0.78 - 0.15 * rays[..., 2] / ray_length, value)
+        scaled = value * np.float32(255.0)
+        if noise is not None:
+            scaled += noise
+        return np.asarray(np.clip(np.rint(scaled), 0, 255), dtype=np.uint8)
+
+    def _sample(self, x: FloatArray, y: FloatArray, lod: FloatArray) -> FloatArray:
+        """Trilinear lookup of the pattern at texel coordinates (finest level) and a level."""
+        shape = x.shape
+        base = np.floor(lod).astype(np.int8).ravel()
+        # One stable (radix) sort puts each level's pixels together.
+        order = np.argsort(base, kind="stable")
+        counts = np.bincount(base, minlength=len(self._levels))
+        xs, ys = x.ravel()[order], y.ravel()[order]
+        frac = (lod.ravel() - base)[order].astype(np.float32)
+        sorted_out = np.empty(xs.shape, dtype=np.float32)
+        start = 0
+        for level, count in enumerate(counts.tolist()):
+            if not count:
+                continue
+            part = slice(start, start + count)
+            fine = self._lookup(level, xs[part], ys[part])
+            coarse = self._lookup(level + 1, xs[part], ys[part])
+            w = frac[part]
+            sorted_out[part] = fine + (coarse - fine) * w
+            start += count
+        out = np.empty(xs.shape, dtype=np.float32)
+        out[order] = sorted_out
+        return out.reshape(shape)
+
+    def _lookup(self, level: int, x: FloatArray, y: FloatArray) -> FloatArray:
+        image = self._levels[level]
+        scale = np.float32(0.5**level)
+        count = x.size
+        # remap wants a 2-D map under 32767 on a side: lay the points out in rows.
+        rows = -(-count // _REMAP_ROW)
+        map_x = np.zeros(rows * _REMAP_ROW, dtype=np.float32)
+        map_y = np.zeros(rows * _REMAP_ROW, dtype=np.float32)
+        np.multiply(x, scale, out=map_x[:count])
+        np.multiply(y, scale, out=map_y[:count])
+        sampled = cv2.remap(
+            image,
+            map_x.reshape(rows, _REMAP_ROW),
+            map_y.reshape(rows, _REMAP_ROW),
+            cv2.INTER_LINEAR,
+            borderMode=cv2.BORDER_WRAP,
+        )
+        return np.asarray(sampled, dtype=np.float32).ravel()[:count]
+
+
+def _wrap(texels: FloatArray) -> FloatArray:
+    """Texel coordinates brought into one period of the pattern.
+
+    remap's fixed point needs coordinates below 32767; its border wrap then handles the last
+    texel.
+    """
+    period = np.float32(_TEXTURE_SIZE)
+    return np.asarray(texels - period * np.floor(texels * (1.0 / period)), dtype=np.float32)

@@ -1,0 +1,265 @@
+"""The local planner's parts: enlargement, speed law, memory, visibility, gating, decisions."""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import pytest
+
+from avoidd.config import AvoidanceConfig
+from avoidd.planner.core import Goal, Planner, Pose, stopping_speed_m_s
+from avoidd.planner.gating import Facts, Gate, gate
+from avoidd.planner.geometry import directions_rad, free_distance
+from avoidd.planner.memory import ObstacleMemory, bearing_bins
+from avoidd.planner.visibility import VisibilityGrid
+from avoidd.types import SECTOR_COUNT
+
+S = 1_000_000_000
+
+
+def _scan(bins: dict[int, float], covered: range | None = None) -> np.ndarray:
+    """A 72-bin body scan: unknown outside ``covered``, clear inside, ``bins`` as given."""
+    scan = np.full(SECTOR_COUNT, np.nan, dtype=np.float32)
+    for i in covered if covered is not None else range(SECTOR_COUNT):
+        scan[i % SECTOR_COUNT] = np.inf
+    for i, distance in bins.items():
+        scan[i % SECTOR_COUNT] = distance
+    return scan
+
+
+# --- enlargement -------------------------------------------------------------------------
+
+
+def test_a_point_ahead_blocks_the_headings_within_its_enlarged_angle() -> None:
+    point = np.array([[5.0, 0.0]])  # 5 m north
+    clearance = 1.5
+    half_angle = math.asin(clearance / 5.0)
+    headings = np.array([0.0, half_angle - 0.01, half_angle + 0.01, math.pi / 2, math.pi])
+    free = free_distance(point, headings, clearance)
+    assert free[0] == pytest.approx(5.0 - clearance)
+    assert math.isfinite(free[1]) and free[1] > free[0]
+    assert np.isinf(free[2:]).all()
+
+
+def test_a_point_within_the_clearance_blocks_only_the_way_toward_it() -> None:
+    point = np.array([[1.0, 0.0]])  # 1 m north, clearance 1.5: already too near
+    free = free_distance(point, np.array([0.0, math.pi]), 1.5)
+    assert free[0] == 0.0  # toward it
+    assert np.isinf(free[1])  # away from it
+
+
+# --- speed law ---------------------------------------------------------------------------
+
+
+@pytest.mark.parametrize("free_m", [0.5, 2.0, 8.0, 30.0])
+def test_the_stopping_speed_stops_within_the_free_distance_after_the_latency(
+    free_m: float,
+) -> None:
+    accel, latency = 2.0, 0.4
+    v = stopping_speed_m_s(free_m, accel, latency)
+    assert v * latency + v * v / (2 * accel) == pytest.approx(free_m)
+
+
+def test_no_speed_without_free_distance() -> None:
+    assert stopping_speed_m_s(0.0, 2.0, 0.4) == 0.0
+    assert stopping_speed_m_s(-1.0, 2.0, 0.4) == 0.0
+
+
+# --- memory ------------------------------------------------------------------------------
+
+
+def test_memory_places_readings_in_the_local_frame_with_the_pose_at_capture() -> None:
+    memory = ObstacleMemory(memory_s=10.0)
+    # Facing east from (10, 5): bin 0 at 4 m is the point (10, 9).
+    memory.add_scan(_scan({0: 4.0}), 1 * S, (10.0, 5.0), math.pi / 2, 20.0)
+    np.testing.assert_allclose(memory.north_east, [[10.0, 9.0]], atol=1e-9)
+    # Seen from elsewhere it is where it was.
+    np.testing.assert_allclose(memory.offsets((12.0, 9.0)), [[-2.0, 0.0]], atol=1e-9)
+
+
+def test_memory_keeps_what_leaves_the_view_and_forgets_it_after_the_memory_time() -> None:
+    memory = ObstacleMemory(memory_s=2.0)
+    memory.add_scan(_scan({0: 4.0}, range(-7, 8)), 1 * S, (0.0, 0.0), 0.0, 20.0)
+    # Turned away: the point is unknown to the new scan (not covered), so it stays.
+    memory.add_scan(_scan({}, range(29, 44)), 2 * S, (0.0, 0.0), 0.0, 20.0)
+    assert len(memory.north_east) == 1
+    memory.expire(int(2.9 * S))
+    assert len(memory.north_east) == 1
+    memory.expire(int(3.1 * S))
+    assert len(memory.north_east) == 0
+
+
+def test_a_reading_that_sees_past_a_remembered_point_removes_it() -> None:
+    memory = ObstacleMemory(memory_s=10.0)
+    memory.add_scan(_scan({0: 4.0}), 1 * S, (0.0, 0.0), 0.0, 20.0)
+    memory.add_scan(_scan({}), 2 * S, (0.0, 0.0), 0.0, 20.0)  # clear now
+    assert len(memory.north_east) == 0
+
+
+def test_bearing_bins_follow_the_yaw() -> None:
+    bins = bearing_bins(np.array([math.pi / 2, math.pi]), math.pi / 2)
+    assert bins.tolist() == [0, 18]
+
+
+# --- visibility --------------------------------------------------------------------------
+
+
+def test_only_what_a_scan_looked_through_counts_as_seen() -> None:
+    grid = VisibilityGrid()
+    # Everything within 20 m was seen at t = 0 (the vehicle turned once around); then a
+    # camera of +-70 degrees saw clear ahead at 5 s.
+    grid.mark((0.0, 0.0), 0.0, _scan({}), 0, 20.0)
+    grid.mark((0.0, 0.0), 0.0, _scan({}, range(-14, 15)), 5 * S, 20.0)
+    headings = np.array([0.0, math.pi / 2, math.pi])
+    assert np.isinf(grid.seen_distance((0.0, 0.0), headings, 0.5, 6.0, 0)).all()
+    # With the turn forgotten, only ahead is seen.
+    recent = grid.seen_distance((0.0, 0.0), headings, 0.5, 6.0, 4 * S)
+    assert np.isinf(recent[0])
+    assert recent[1] < 1.0 and recent[2] < 1.0
+    # A narrow camera cannot vouch for the vehicle's own flanks: it must turn to look.
+    narrow = VisibilityGrid()
+    narrow.mark((0.0, 0.0), 0.0, _scan({}, range(-6, 7)), 5 * S, 20.0)
+    assert narrow.seen_distance((0.0, 0.0), headings[:1], 0.5, 6.0, 4 * S)[0] < 1.0
+
+
+def test_a_surface_hides_what_is_behind_it() -> None:
+    grid = VisibilityGrid()
+    grid.mark((0.0, 0.0), 0.0, _scan({i: 3.0 for i in range(-8, 9)}), S, 20.0)
+    seen = grid.seen_distance((0.0, 0.0), np.array([0.0, math.pi]), 0.5, 10.0, 0)
+    assert 2.0 < seen[0] < 3.5
+    assert np.isinf(seen[1])
+
+
+# --- gating ------------------------------------------------------------------------------
+
+
+def _facts(**changes: bool) -> Facts:
+    base = {
+        "enabled": True,
+        "link_up": True,
+        "armed": True,
+        "setpoint_mode": True,
+        "px4": False,
+        "goal": True,
+        "fresh": True,
+        "prestream": True,
+    }
+    return Facts(**(base | changes))
+
+
+def test_gate_plans_only_when_every_condition_holds() -> None:
+    assert gate(_facts()) is Gate.PLAN
+    for missing in ("enabled", "link_up", "armed", "goal"):
+        assert gate(_facts(**{missing: False})) is Gate.SILENT, missing
+
+
+def test_gate_never_fights_the_pilot_and_holds_on_stale_perception() -> None:
+    assert gate(_facts(setpoint_mode=False)) is Gate.SILENT  # ArduPilot in LOITER
+    assert gate(_facts(fresh=False)) is Gate.HOLD
+    assert gate(_facts(setpoint_mode=False, px4=True)) is Gate.PRESTREAM
+    assert gate(_facts(setpoint_mode=False, px4=True, prestream=False)) is Gate.SILENT
+    assert gate(_facts(setpoint_mode=False, fresh=False)) is Gate.SILENT
+
+
+# --- decisions ---------------------------------------------------------------------------
+
+
+def _planner(**changes: object) -> Planner:
+    return Planner(AvoidanceConfig.model_validate({"enabled": True} | changes), 20.0)
+
+
+def _pose(t_s: float, north: float = 0.0, east: float = 0.0, yaw: float = 0.0) -> Pose:
+    return Pose(int(t_s * S), north, east, -2.0, yaw)
+
+
+def test_open_ground_flies_straight_to_the_goal_at_full_speed() -> None:
+    planner = _planner()
+    planner.observe_scan(_scan({}), S, _pose(1.0))
+    decision = planner.decide(S, _pose(1.0), Goal(30.0, 0.0, 2.0), fresh=True)
+    assert decision.state == "moving"
+    assert decision.direction_deg == pytest.approx(0.0)
+    assert decision.velocity_ned[0] == pytest.approx(3.0)
+    assert decision.velocity_ned[1] == pytest.approx(0.0, abs=1e-9)
+
+
+def test_an_unseen_way_is_never_taken_when_unknown_is_blocked() -> None:
+    planner = _planner()
+    # Only the forward 60 degrees were looked at; the goal is behind.
+    planner.observe_scan(_scan({}, range(-6, 7)), S, _pose(1.0))
+    decision = planner.decide(S, _pose(1.0), Goal(-30.0, 0.0, 2.0), fresh=True)
+    if decision.state == "moving":
+        assert abs(math.remainder(decision.direction_deg or 0.0, 360.0)) <= 35.0
+    else:
+        assert decision.holding and decision.yaw_rate_rad_s != 0.0  # turning to look
+
+
+def test_an_obstacle_ahead_is_passed_on_one_side_at_the_clearance() -> None:
+    planner = _planner()
+    # A post ahead, nearer than its enlargement plus the admissibility threshold.
+    scan = _scan({0: 2.2, 1: 2.25, -1: 2.25})
+    planner.observe_scan(scan, S, _pose(1.0))
+    decision = planner.decide(S, _pose(1.0), Goal(30.0, 0.0, 2.0), fresh=True)
+    assert decision.state == "moving"
+    offset = abs(math.remainder(decision.direction_deg or 0.0, 360.0))
+    # Out of the enlarged post: asin(1.75 / 2.2) = 53 deg (clearance plus turning buffer).
+    assert 50.0 <= offset <= 90.0
+
+
+def test_the_chosen_side_is_kept_while_the_obstacle_is_passed() -> None:
+    planner = _planner()
+    sides = []
+    for step in range(20):
+        t = 1.0 + 0.05 * step
+        # A wide wall ahead whose readings jitter from frame to frame.
+        jitter = 0.05 * math.sin(step * 2.3)
+        scan = _scan({i: 5.0 / math.cos(math.radians(5 * i)) + jitter for i in range(-6, 7)})
+        planner.observe_scan(scan, int(t * S), _pose(t))
+        decision = planner.decide(int(t * S), _pose(t), Goal(30.0, 0.0, 2.0), fresh=True)
+        if decision.direction_deg is not None:
+            sides.append(math.copysign(1, math.remainder(decision.direction_deg, 360.0)))
+    assert sides and len(set(sides)) == 1
+
+
+def test_speed_follows_the_free_distance() -> None:
+    near, far = _planner(), _planner()
+    near.observe_scan(_scan({0: 4.0}), S, _pose(1.0))
+    far.observe_scan(_scan({0: 12.0}), S, _pose(1.0))
+    goal = Goal(30.0, 0.0, 2.0)
+    slow = near.decide(S, _pose(1.0), goal, fresh=True)
+    fast = far.decide(S, _pose(1.0), goal, fresh=True)
+    assert slow.speed_limit_m_s < fast.speed_limit_m_s
+
+
+def test_stale_perception_holds() -> None:
+    planner = _planner()
+    decision = planner.decide(S, _pose(1.0), Goal(30.0, 0.0, 2.0), fresh=False)
+    assert decision.state == "stale"
+    assert decision.holding
+
+
+def test_arrival_holds_and_says_so() -> None:
+    planner = _planner()
+    planner.observe_scan(_scan({}), S, _pose(1.0))
+    decision = planner.decide(S, _pose(1.0, 29.5, 0.2), Goal(30.0, 0.0, 2.0), fresh=True)
+    assert decision.state == "arrived"
+    assert decision.holding
+
+
+def test_boxed_in_means_turn_to_look_then_no_path() -> None:
+    planner = _planner(dead_end_scan_s=2.0)
+    walls = _scan({i: 1.8 for i in range(SECTOR_COUNT)})
+    goal = Goal(30.0, 0.0, 2.0)
+    planner.observe_scan(walls, S, _pose(1.0))
+    first = planner.decide(S, _pose(1.0), goal, fresh=True)
+    assert first.state == "dead end"
+    assert first.holding and first.yaw_rate_rad_s != 0.0
+    planner.observe_scan(walls, int(3.5 * S), _pose(3.5))
+    last = planner.decide(int(3.5 * S), _pose(3.5), goal, fresh=True)
+    assert last.state == "no path"
+    assert last.holding and last.yaw_rate_rad_s == 0.0
+
+
+def test_the_72_directions_are_five_degrees_apart_from_north() -> None:
+    d = np.degrees(directions_rad())
+    assert d[0] == 0.0 and d[1] == 5.0 and len(d) == 72
