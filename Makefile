@@ -6,7 +6,7 @@ VENV := .venv
 BIN := $(VENV)/bin
 CONFIG ?= config/demo.yaml
 
-.PHONY: run test lint typecheck pytest format clean
+.PHONY: run test sim lint typecheck pytest format clean
 
 run: $(VENV)/.stamp-run
 	$(BIN)/avoidd run --config $(CONFIG)
@@ -16,6 +16,11 @@ test: $(VENV)/.stamp-test
 	$(BIN)/ruff format --check avoidd tests
 	$(BIN)/mypy --strict avoidd
 	$(BIN)/pytest
+
+# Every built-in scenario (sitl/scenarios) in the simulator, with the table of results.
+SEEDS ?= 1
+sim: $(VENV)/.stamp-run
+	$(BIN)/avoidd sim batch sitl/scenarios/*.yaml --seeds $(SEEDS) --json sim-batch.json
 
 format: $(VENV)/.stamp-test
 	$(BIN)/ruff format avoidd tests

@@ -48,8 +48,12 @@ def synthetic_config(
     pipeline: dict[str, Any] | None = None,
     rate_hz: float = 15.0,
     mavlink: dict[str, Any] | None = None,
+    sections: dict[str, Any] | None = None,
 ) -> Path:
-    """A complete config with one synthetic head (or the given heads) and the given link."""
+    """A complete config with one synthetic head (or the given heads) and the given link.
+
+    ``sections`` adds or replaces whole top-level sections (``avoidance``, ``perception``).
+    """
     calibration = write_rectified_calibration(folder, rig)
     head = {
         "name": "front",
@@ -70,7 +74,7 @@ def synthetic_config(
             **(mavlink or {}),
         },
         "pipeline": pipeline or {"max_age_ms": 400, "log_interval_s": 1.0},
-    }
+    } | (sections or {})
     return write_yaml(folder / "avoidd.yaml", config)
 
 

@@ -118,12 +118,13 @@ def test_check_config_tells_the_range_and_the_field_of_view(
     assert "OBSTACLE_DISTANCE range" in out
 
 
-def test_avoidance_enabled_is_refused_until_the_daemon_steers(
+def test_avoidance_without_a_goal_is_refused_until_mavlink_goals_are_taken(
     tmp_path: Path, capsys: pytest.CaptureFixture[str]
 ) -> None:
     config = _config(tmp_path, SOURCE, mavlink=True)
-    text = config.read_text() + "avoidance: {enabled: true}\n"
-    config.write_text(text)
+    config.write_text(config.read_text() + "avoidance: {enabled: true}\n")
     assert main(["check-config", str(config)]) == 2
-    err = capsys.readouterr().err
-    assert "avoidance.enabled" in err and "avoidance.enabled: false" in err
+    assert "avoidance.enabled needs avoidance.goal" in capsys.readouterr().err
+    goal = "avoidance: {enabled: true, goal: {north_m: 20, east_m: 0, altitude_m: 2}}\n"
+    config.write_text(config.read_text().replace("avoidance: {enabled: true}\n", goal))
+    assert main(["check-config", str(config)]) == 0

@@ -16,6 +16,7 @@ from avoidd import sources
 from avoidd.config import AppConfig, MavlinkConfig
 from avoidd.daemon import health
 from avoidd.daemon.announce import Announcer, send_statustext
+from avoidd.daemon.avoidance import AvoidanceLoop
 from avoidd.daemon.head import Head, OpenSource
 from avoidd.daemon.outputs import Outputs
 from avoidd.daemon.stats import DaemonStats, log_every, snapshot
@@ -81,6 +82,8 @@ class Daemon:
         self._stopping = asyncio.Event()
         self.heads: list[Head] = []
         self.outputs: Outputs | None = None
+        self.avoidance: AvoidanceLoop | None = None
+        """The setpoint loop, when ``avoidance.enabled`` (built when :meth:`run` starts)."""
         """The obstacle message senders, built when :meth:`run` starts."""
         mavlink = config.mavlink
         self.link = link if link is not None else build_link(mavlink)
@@ -224,6 +227,16 @@ class Daemon:
             self.vehicle,
         )
         loops = self.outputs.loops()
+        if self.config.avoidance.enabled:
+            self.avoidance = AvoidanceLoop(
+                self.config.avoidance,
+                self.outputs,
+                self.vehicle,
+                self.link,
+                self.announce,
+                self.config.mavlink.obstacle_distance.max_distance_cm / 100.0,
+            )
+            loops["avoidance"] = self.avoidance.run()
         loops["heartbeat"] = self._heartbeat_loop()
         loops["statustext"] = send_statustext(announcer, self.link, self._check_staleness)
         loops["log"] = log_every(

@@ -1,0 +1,193 @@
+"""The daemon's setpoint loop: the planner's velocity to the autopilot, only when it may fly.
+
+Each cycle (``avoidance.setpoint_rate_hz``) takes the facts the link knows (link up, armed,
+mode, autopilot) and whether perception is fresh, applies the gate
+(:func:`avoidd.planner.gating.gate`) and sends at most one ``SET_POSITION_TARGET_LOCAL_NED``
+(``MAV_FRAME_LOCAL_NED``, velocity and yaw rate, type mask ``0x05C7``) to the autopilot:
+
+- nothing while the pilot or the autopilot flies (mode without setpoints, disarmed, link down,
+  no goal): the next cycle after a mode change away sends nothing;
+- PX4 armed with a goal outside OFFBOARD: hold-here setpoints, so it can be switched to
+  OFFBOARD (it needs a stream above 2 Hz first);
+- perception stale, or no local position: an explicit zero-velocity hold (ArduPilot drops a
+  velocity command after 3 s, so silence is no hold);
+- otherwise the planner's decision.
+
+Each fresh merged scan goes into the planner's memory with the vehicle's position and the yaw
+at its capture time. Planner state changes are logged and sent as STATUSTEXT.
+"""
+
+from __future__ import annotations
+
+import logging
+import time
+from collections.abc import Callable
+
+from avoidd.config import AvoidanceConfig
+from avoidd.daemon.outputs import Outputs, every
+from avoidd.mavlink import codec as mav
+from avoidd.mavlink.codec import Message
+from avoidd.mavlink.link import MavLink
+from avoidd.mavlink.modes import PX4
+from avoidd.mavlink.vehicle import Vehicle
+from avoidd.planner.core import Decision, Goal, Planner, Pose
+from avoidd.planner.gating import Facts, Gate, gate
+
+logger = logging.getLogger(__name__)
+
+VELOCITY_YAW_RATE_MASK = 0x05C7
+"""SET_POSITION_TARGET type_mask: use velocity and yaw rate; ignore position, acceleration
+and yaw (bits 0-2, 6-8 and 10 set)."""
+
+_REASONS = {
+    "link": "link down",
+    "armed": "disarmed",
+    "goal": "no goal",
+    "mode": "mode does not take setpoints",
+    "enabled": "avoidance off",
+}
+
+
+class AvoidanceLoop:
+    """Plans and sends setpoints at the configured rate.
+
+    Args:
+        config: The ``avoidance`` section.
+        outputs: The obstacle senders (their merged fresh scan is the planner's input).
+        vehicle: The autopilot's state.
+        link: Where the setpoints go.
+        announce: STATUSTEXT reporter (severity, text, de-duplication key).
+        max_range_m: A clear bin sees this far.
+    """
+
+    def __init__(
+        self,
+        config: AvoidanceConfig,
+        outputs: Outputs,
+        vehicle: Vehicle,
+        link: MavLink,
+        announce: Callable[[int, str, str | None], None],
+        max_range_m: float,
+    ) -> None:
+        self.config = config
+        self.outputs = outputs
+        self.vehicle = vehicle
+        self.link = link
+        self.announce = announce
+        self.planner = Planner(config, max_range_m)
+        goal = config.goal
+        self.goal = Goal(goal.north_m, goal.east_m, goal.altitude_m) if goal else None
+        self.state = "starting"
+        """What the loop did last cycle: a gate reason or the planner's state."""
+        self.last_decision: Decision | None = None
+        self.sent = 0
+
+    def facts(self, fresh: bool) -> Facts:
+        """What the link and perception say this cycle."""
+        mode = self.vehicle.mode
+        return Facts(
+            enabled=self.config.enabled,
+            link_up=self.vehicle.link_up,
+            armed=mode is not None and mode.armed,
+            setpoint_mode=mode is not None and mode.guided,
+            px4=mode is not None and mode.autopilot == PX4,
+            goal=self.goal is not None,
+            fresh=fresh,
+            prestream=self.config.px4_prestream,
+        )
+
+    def _pose(self, t_ns: int) -> Pose | None:
+        """The vehicle's local position with the yaw at ``t_ns`` (None without a position)."""
+        position = self.vehicle.position
+        attitude = self.vehicle.attitude_at(t_ns)
+        if position is None or attitude is None:
+            return None
+        return Pose(
+            t_ns,
+            position.north_m,
+            position.east_m,
+            position.down_m,
+            attitude.yaw_rad,
+            position.vn_m_s,
+            position.ve_m_s,
+        )
+
+    def step(self, now_ns: int) -> Message | None:
+        """One cycle: the setpoint to send now, or None."""
+        scan = self.outputs.current_scan(now_ns)
+        if scan is not None:
+            at_capture = self._pose(scan.t_capture_ns)
+            if at_capture is not None:
+                self.planner.observe_scan(scan.distance_m, scan.t_capture_ns, at_capture)
+        pose = self._pose(now_ns)
+        facts = self.facts(fresh=scan is not None and pose is not None)
+        verdict = gate(facts)
+        if verdict is Gate.SILENT:
+            self._transition(self._silent_reason(facts))
+            return None
+        assert self.goal is not None  # the gate is silent without one
+        if verdict is Gate.PLAN and pose is not None:
+            decision = self.planner.decide(now_ns, pose, self.goal, fresh=True)
+        else:
+            why = "prestream" if verdict is Gate.PRESTREAM else "stale"
+            if verdict is Gate.HOLD and pose is None:
+                why = "no position"
+            decision = self.planner.hold(why)
+        self.last_decision = decision
+        self._transition(decision.state)
+        return self._setpoint(now_ns, decision)
+
+    def _silent_reason(self, facts: Facts) -> str:
+        for name in ("enabled", "link", "armed", "goal"):
+            value = facts.link_up if name == "link" else getattr(facts, name)
+            if not value:
+                return _REASONS[name]
+        return _REASONS["mode"]
+
+    def _setpoint(self, now_ns: int, decision: Decision) -> Message:
+        vn, ve, vd = decision.velocity_ned
+        return self.link.codec.build(
+            "SET_POSITION_TARGET_LOCAL_NED",
+            self.vehicle.time_boot_ms(now_ns),
+            self.vehicle.system_id or 0,
+            self.vehicle.component_id,
+            mav.MAV_FRAME_LOCAL_NED,
+            VELOCITY_YAW_RATE_MASK,
+            0.0,
+            0.0,
+            0.0,
+            vn,
+            ve,
+            vd,
+            0.0,
+            0.0,
+            0.0,
+            0.0,
+            decision.yaw_rate_rad_s,
+        )
+
+    def _transition(self, state: str) -> None:
+        if state == self.state:
+            return
+        previous, self.state = self.state, state
+        logger.info("avoidance: %s (was %s)", state, previous)
+        severity = mav.MAV_SEVERITY_INFO
+        text = f"avoidd: avoidance {state}"
+        if state == "no path":
+            severity, text = mav.MAV_SEVERITY_WARNING, "avoidd: no path to goal"
+        elif state == "stale":
+            severity = mav.MAV_SEVERITY_CRITICAL
+        elif state == "arrived" and self.goal is not None:
+            text = f"avoidd: reached {self.goal.label}"
+        self.announce(severity, text, "avoidance")
+
+    async def run(self) -> None:
+        """Send setpoints at the setpoint rate, forever."""
+
+        def send() -> None:
+            message = self.step(time.monotonic_ns())
+            if message is not None:
+                self.link.send(message)
+                self.sent += 1
+
+        await every(self.config.setpoint_rate_hz, send)

@@ -1,0 +1,102 @@
+"""The daemon's setpoint loop against the mock autopilot over real UDP, both flavours: gating by
+mode, arming and link, PX4 prestream, the message's frame, mask and target."""
+
+from __future__ import annotations
+
+import asyncio
+from pathlib import Path
+from typing import Any
+
+from avoidd.daemon.avoidance import VELOCITY_YAW_RATE_MASK
+from avoidd.mavlink import codec as mav
+from avoidd.mavlink.mock_autopilot import MockAutopilot
+from tests.helpers import free_udp_port, synthetic_config, wait_for
+from tests.helpers import start_daemon as start
+from tests.helpers import stop_daemon as stop
+
+AVOIDANCE = {
+    "avoidance": {"enabled": True, "goal": {"north_m": 30.0, "east_m": 0.0, "altitude_m": 1.5}}
+}
+
+
+async def _pair(tmp_path: Path, autopilot: MockAutopilot) -> tuple[Any, asyncio.Task[int]]:
+    port = free_udp_port()
+    await autopilot.start(f"udpin:127.0.0.1:{port}")
+    config = synthetic_config(tmp_path, f"udpout:127.0.0.1:{port}", sections=AVOIDANCE)
+    return await start(config)
+
+
+def _setpoints(autopilot: MockAutopilot) -> list[Any]:
+    return autopilot.of_type("SET_POSITION_TARGET_LOCAL_NED")
+
+
+async def test_ardupilot_guided_gets_velocity_setpoints_and_loiter_gets_none(
+    tmp_path: Path,
+) -> None:
+    autopilot = MockAutopilot(system_id=7, mode="GUIDED", armed=True)
+    daemon, task = await _pair(tmp_path, autopilot)
+    try:
+        assert await wait_for(lambda: len(_setpoints(autopilot)) >= 20, 15.0)
+        message = _setpoints(autopilot)[-1]
+        assert message.coordinate_frame == mav.MAV_FRAME_LOCAL_NED
+        assert message.type_mask == VELOCITY_YAW_RATE_MASK
+        assert (message.target_system, message.target_component) == (7, 1)
+        assert daemon.avoidance.state in {"moving", "dead end", "no path", "arrived"}
+        # The pilot takes over: once avoidd has heard the new mode, nothing more is sent.
+        autopilot.mode = "LOITER"
+        assert await wait_for(lambda: daemon.avoidance.state == "mode does not take setpoints", 5)
+        count = len(_setpoints(autopilot))
+        await asyncio.sleep(0.6)
+        assert len(_setpoints(autopilot)) <= count + 1  # at most one already in flight
+        # Disarmed in GUIDED: nothing either.
+        autopilot.mode, autopilot.armed = "GUIDED", False
+        assert await wait_for(lambda: daemon.avoidance.state == "disarmed", 5)
+        count = len(_setpoints(autopilot))
+        await asyncio.sleep(0.6)
+        assert len(_setpoints(autopilot)) <= count + 1
+        texts = [m.text for m in autopilot.of_type("STATUSTEXT")]
+        assert "avoidd: avoidance disarmed" in texts
+    finally:
+        await stop(daemon, task)
+        await autopilot.stop()
+
+
+async def test_px4_prestreams_hold_setpoints_until_offboard(tmp_path: Path) -> None:
+    autopilot = MockAutopilot(flavour="px4", system_id=7, mode="POSCTL", armed=True)
+    daemon, task = await _pair(tmp_path, autopilot)
+    try:
+        assert await wait_for(lambda: len(_setpoints(autopilot)) >= 30, 15.0)
+        assert daemon.avoidance.state == "prestream"
+        # Above 2 Hz (the stream is at 20 Hz), and every one holds still.
+        recent = _setpoints(autopilot)[-20:]
+        assert all((m.vx, m.vy, m.vz, m.yaw_rate) == (0, 0, 0, 0) for m in recent)
+        autopilot.mode = "OFFBOARD"
+        assert await wait_for(lambda: daemon.avoidance.state != "prestream", 5)
+        assert daemon.avoidance.state in {"moving", "dead end", "no path", "arrived", "stale"}
+    finally:
+        await stop(daemon, task)
+        await autopilot.stop()
+
+
+async def test_stale_perception_is_an_explicit_zero_velocity_hold(tmp_path: Path) -> None:
+    autopilot = MockAutopilot(system_id=7, mode="GUIDED", armed=True)
+    port = free_udp_port()
+    await autopilot.start(f"udpin:127.0.0.1:{port}")
+    # Frames twice a second and an age limit of 20 ms: perception is never fresh.
+    config = synthetic_config(
+        tmp_path,
+        f"udpout:127.0.0.1:{port}",
+        source={"kind": "synthetic", "fps": 2, "seed": 3},
+        pipeline={"max_age_ms": 20, "log_interval_s": 1.0},
+        sections=AVOIDANCE,
+    )
+    daemon, task = await start(config)
+    try:
+        assert await wait_for(lambda: len(_setpoints(autopilot)) >= 20, 15.0)
+        assert daemon.avoidance.state == "stale"
+        recent = _setpoints(autopilot)[-10:]
+        assert all((m.vx, m.vy, m.vz) == (0, 0, 0) for m in recent)
+        assert "avoidd: avoidance stale" in [m.text for m in autopilot.of_type("STATUSTEXT")]
+    finally:
+        await stop(daemon, task)
+        await autopilot.stop()
