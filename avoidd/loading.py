@@ -82,12 +82,6 @@ def load_all(path: Path, input_given: bool = False) -> tuple[AppConfig, dict[str
                 f"mavlink.signing.timestamp_file: folder {folder} missing or not writable; "
                 "create it (systemd: StateDirectory=avoidd)"
             )
-    if config.avoidance.enabled and config.avoidance.goal is None:
-        # Goals from MAVLink (DO_REPOSITION, position targets, the mission) are not taken yet.
-        problems.append(
-            f"{path}: avoidance.enabled needs avoidance.goal (north_m, east_m, altitude_m in "
-            "the autopilot's local frame): goals over MAVLink are not taken yet"
-        )
     if config.avoidance.follow_mission:
         problems.append(
             f"{path}: avoidance.follow_mission: the mission is not downloaded yet; set it false "

@@ -100,3 +100,67 @@ async def test_stale_perception_is_an_explicit_zero_velocity_hold(tmp_path: Path
     finally:
         await stop(daemon, task)
         await autopilot.stop()
+
+
+async def test_a_goal_addressed_to_avoidd_replaces_the_current_one_and_commands_are_refused(
+    tmp_path: Path,
+) -> None:
+    autopilot = MockAutopilot(system_id=7, mode="GUIDED", armed=True)
+    daemon, task = await _pair(tmp_path, autopilot)
+    try:
+        assert await wait_for(lambda: daemon.avoidance is not None and daemon.vehicle.link_up, 10)
+        goal = autopilot.codec.build(
+            "SET_POSITION_TARGET_LOCAL_NED",
+            0,
+            7,
+            mav.MAV_COMP_ID_OBSTACLE_AVOIDANCE,
+            mav.MAV_FRAME_LOCAL_NED,
+            0x0FF8,  # position only
+            12.0,
+            -4.0,
+            -3.0,
+            0,
+            0,
+            0,
+            0,
+            0,
+            0,
+            0,
+            0,
+        )
+        autopilot.send(goal)
+        assert await wait_for(lambda: daemon.avoidance.goal.label == "GCS goal", 5)
+        assert (daemon.avoidance.goal.north_m, daemon.avoidance.goal.east_m) == (12.0, -4.0)
+        assert daemon.avoidance.goal.altitude_m == 3.0
+        assert await wait_for(
+            lambda: (
+                "avoidd: goal N12.0 E-4.0 A3.0" in [m.text for m in autopilot.of_type("STATUSTEXT")]
+            ),
+            3,
+        )
+        # A global reposition is not taken yet: refused with an ACK and a pointer.
+        reposition = autopilot.codec.build(
+            "COMMAND_LONG",
+            7,
+            mav.MAV_COMP_ID_OBSTACLE_AVOIDANCE,
+            192,
+            0,
+            -1,
+            0,
+            0,
+            0,
+            47.0,
+            8.0,
+            20.0,
+        )
+        autopilot.send(reposition)
+        assert await wait_for(
+            lambda: any(
+                m.command == 192 and m.result == mav.MAV_RESULT_UNSUPPORTED
+                for m in autopilot.of_type("COMMAND_ACK")
+            ),
+            3,
+        )
+    finally:
+        await stop(daemon, task)
+        await autopilot.stop()

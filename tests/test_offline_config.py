@@ -118,13 +118,14 @@ def test_check_config_tells_the_range_and_the_field_of_view(
     assert "OBSTACLE_DISTANCE range" in out
 
 
-def test_avoidance_without_a_goal_is_refused_until_mavlink_goals_are_taken(
+def test_following_the_mission_is_refused_until_the_mission_is_downloaded(
     tmp_path: Path, capsys: pytest.CaptureFixture[str]
 ) -> None:
     config = _config(tmp_path, SOURCE, mavlink=True)
-    config.write_text(config.read_text() + "avoidance: {enabled: true}\n")
+    base = config.read_text()
+    config.write_text(base + "avoidance: {enabled: true, follow_mission: true}\n")
     assert main(["check-config", str(config)]) == 2
-    assert "avoidance.enabled needs avoidance.goal" in capsys.readouterr().err
-    goal = "avoidance: {enabled: true, goal: {north_m: 20, east_m: 0, altitude_m: 2}}\n"
-    config.write_text(config.read_text().replace("avoidance: {enabled: true}\n", goal))
+    assert "avoidance.follow_mission" in capsys.readouterr().err
+    # Without a goal avoidance waits for one over MAVLink: valid.
+    config.write_text(base + "avoidance: {enabled: true}\n")
     assert main(["check-config", str(config)]) == 0

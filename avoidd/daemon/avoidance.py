@@ -20,6 +20,7 @@ at its capture time. Planner state changes are logged and sent as STATUSTEXT.
 from __future__ import annotations
 
 import logging
+import math
 import time
 from collections.abc import Callable
 
@@ -180,6 +181,69 @@ class AvoidanceLoop:
         elif state == "arrived" and self.goal is not None:
             text = f"avoidd: reached {self.goal.label}"
         self.announce(severity, text, "avoidance")
+
+    def handle_command(self, message: Message) -> None:
+        """A goal or command addressed to avoidd's component (newest goal wins).
+
+        ``SET_POSITION_TARGET_LOCAL_NED`` with a position in ``MAV_FRAME_LOCAL_NED`` becomes
+        the goal (north, east, altitude = -z). Commands are answered with COMMAND_ACK:
+        ``MAV_CMD_DO_REPOSITION`` and anything else as unsupported (global goals need the
+        autopilot's origin, not taken yet), with a STATUSTEXT saying what to send instead.
+        """
+        kind = message.get_type()
+        if kind == "SET_POSITION_TARGET_LOCAL_NED":
+            position_ignored = message.type_mask & 0x7
+            finite = all(math.isfinite(v) for v in (message.x, message.y, message.z))
+            if (
+                message.coordinate_frame != mav.MAV_FRAME_LOCAL_NED
+                or position_ignored
+                or not finite
+            ):
+                logger.warning(
+                    "goal refused: SET_POSITION_TARGET_LOCAL_NED needs frame LOCAL_NED (1), "
+                    "a finite position and type_mask bits 0-2 clear"
+                )
+                self.announce(mav.MAV_SEVERITY_WARNING, "avoidd: goal refused: frame/mask", None)
+                return
+            self.set_goal(Goal(float(message.x), float(message.y), -float(message.z), "GCS goal"))
+            return
+        if kind in ("COMMAND_LONG", "COMMAND_INT"):
+            command = int(message.command)
+            logger.warning("command %d addressed to avoidd: not supported", command)
+            ack = self.link.codec.build(
+                "COMMAND_ACK",
+                command,
+                mav.MAV_RESULT_UNSUPPORTED,
+                0,
+                0,
+                message.get_srcSystem(),
+                message.get_srcComponent(),
+            )
+            self.link.send(ack)
+            self.announce(
+                mav.MAV_SEVERITY_WARNING,
+                "avoidd: use SET_POSITION_TARGET_LOCAL_NED for goals",
+                "command",
+            )
+            return
+        logger.warning("%s addressed to avoidd: not supported", kind)
+
+    def set_goal(self, goal: Goal) -> None:
+        """Fly to a new goal from now on (the obstacle memory is kept)."""
+        self.goal = goal
+        self.planner.reset()
+        logger.info(
+            "avoidance: new %s: %.1f m north, %.1f m east, %.1f m up",
+            goal.label,
+            goal.north_m,
+            goal.east_m,
+            goal.altitude_m,
+        )
+        self.announce(
+            mav.MAV_SEVERITY_INFO,
+            f"avoidd: goal N{goal.north_m:.1f} E{goal.east_m:.1f} A{goal.altitude_m:.1f}",
+            None,
+        )
 
     async def run(self) -> None:
         """Send setpoints at the setpoint rate, forever."""

@@ -236,6 +236,7 @@ class Daemon:
                 self.announce,
                 self.config.mavlink.obstacle_distance.max_distance_cm / 100.0,
             )
+            self.vehicle.on_command = self.avoidance.handle_command
             loops["avoidance"] = self.avoidance.run()
         loops["heartbeat"] = self._heartbeat_loop()
         loops["statustext"] = send_statustext(announcer, self.link, self._check_staleness)

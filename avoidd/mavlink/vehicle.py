@@ -12,6 +12,7 @@ import logging
 import math
 import time
 from collections import Counter
+from collections.abc import Callable
 from dataclasses import dataclass
 from typing import Protocol
 
@@ -90,6 +91,17 @@ class StreamRequest:
         return max(_SILENT_MIN_NS, 3 * self.interval_us * 1000)
 
 
+ADDRESSED_TO_US = frozenset(
+    {
+        "SET_POSITION_TARGET_LOCAL_NED",
+        "SET_POSITION_TARGET_GLOBAL_INT",
+        "COMMAND_LONG",
+        "COMMAND_INT",
+    }
+)
+"""Message types avoidd takes when addressed to its own component (goals, commands)."""
+
+
 class Vehicle:
     """Tracks the autopilot on one link.
 
@@ -131,6 +143,8 @@ class Vehicle:
         ]
         self._pending: StreamRequest | None = None
         self._pending_sent_s = 0.0
+        self.on_command: Callable[[mav.Message], None] | None = None
+        """Receives the messages in ``ADDRESSED_TO_US`` sent to avoidd's own component."""
         link.codec.system_id = self.system_id or DEFAULT_SYSTEM_ID
         link.subscribe(self.handle)
 
@@ -146,6 +160,11 @@ class Vehicle:
             self.system_id = source
             self._link.codec.system_id = source
             logger.info("MAVLink: adopted vehicle system %d", source)
+        if kind in ADDRESSED_TO_US and self._addressed_to_us(message):
+            # Goals and commands for avoidd itself, from the autopilot or a ground station.
+            if self.on_command is not None:
+                self.on_command(message)
+            return
         if source != self.system_id:
             self.ignored[source] += 1
             return
@@ -157,6 +176,13 @@ class Vehicle:
         handler = getattr(self, f"_on_{kind.lower()}", None)
         if handler is not None:
             handler(message, received_ns)
+
+    def _addressed_to_us(self, message: mav.Message) -> bool:
+        codec = self._link.codec
+        return bool(
+            message.target_component == codec.component_id
+            and message.target_system in (0, codec.system_id)
+        )
 
     def _is_autopilot_heartbeat(self, message: mav.Message) -> bool:
         return bool(
