@@ -4,6 +4,7 @@ mode, arming and link, PX4 prestream, the message's frame, mask and target."""
 from __future__ import annotations
 
 import asyncio
+import json
 from pathlib import Path
 from typing import Any
 
@@ -164,3 +165,56 @@ async def test_a_goal_addressed_to_avoidd_replaces_the_current_one_and_commands_
     finally:
         await stop(daemon, task)
         await autopilot.stop()
+
+
+def _param_values(autopilot: MockAutopilot, name: str) -> list[float]:
+    return [
+        m.param_value for m in autopilot.of_type("PARAM_VALUE") if m.param_id.rstrip("\x00") == name
+    ]
+
+
+async def test_parameters_list_read_set_range_check_and_persist(tmp_path: Path) -> None:
+    params_file = tmp_path / "params.json"
+    autopilot = MockAutopilot(system_id=7, mode="LOITER", armed=True)
+    port = free_udp_port()
+    await autopilot.start(f"udpin:127.0.0.1:{port}")
+    sections = {"avoidance": {"enabled": False, "params_file": str(params_file)}}
+    config = synthetic_config(tmp_path, f"udpout:127.0.0.1:{port}", sections=sections)
+    daemon, task = await start(config)
+    me = mav.MAV_COMP_ID_OBSTACLE_AVOIDANCE
+    try:
+        assert await wait_for(lambda: daemon.vehicle.link_up, 10)
+        autopilot.send(autopilot.codec.build("PARAM_REQUEST_LIST", 7, me))
+        assert await wait_for(lambda: len(autopilot.of_type("PARAM_VALUE")) >= 7, 5)
+        first = autopilot.of_type("PARAM_VALUE")[0]
+        assert first.param_count == 7 and first.param_type == mav.MAV_PARAM_TYPE_REAL32
+        assert _param_values(autopilot, "AVD_ENABLE") == [0.0]
+        # Switch avoidance on and change the margin; an out-of-range speed is refused.
+        for name, value in (("AVD_ENABLE", 1.0), ("AVD_MARGIN", 1.5), ("AVD_MAX_SPEED", 99.0)):
+            autopilot.send(autopilot.codec.build("PARAM_SET", 7, me, name.encode(), value, 9))
+        # Every set is answered (the refused one with the value unchanged).
+        assert await wait_for(
+            lambda: (
+                _param_values(autopilot, "AVD_MAX_SPEED") == [3.0, 3.0]
+                and len(_param_values(autopilot, "AVD_ENABLE")) == 2
+                and len(_param_values(autopilot, "AVD_MARGIN")) == 2
+            ),
+            5,
+        )
+        assert _param_values(autopilot, "AVD_ENABLE")[-1] == 1.0
+        assert _param_values(autopilot, "AVD_MARGIN")[-1] == 1.5
+        assert daemon.avoidance.config.enabled and daemon.avoidance.planner.clearance_m == 2.0
+        autopilot.send(autopilot.codec.build("PARAM_REQUEST_READ", 7, me, b"AVD_MARGIN", -1))
+        assert await wait_for(lambda: len(_param_values(autopilot, "AVD_MARGIN")) == 3, 5)
+    finally:
+        await stop(daemon, task)
+        await autopilot.stop()
+    saved = json.loads(params_file.read_text())
+    assert saved["AVD_ENABLE"] == 1.0 and saved["AVD_MARGIN"] == 1.5
+    assert saved["AVD_MAX_SPEED"] == 3.0
+    # Read back at the next start.
+    from avoidd.config import AvoidanceConfig
+    from avoidd.daemon.params import ParamTable
+
+    table = ParamTable(AvoidanceConfig(params_file=params_file), params_file)
+    assert table.config.enabled and table.config.margin_m == 1.5

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+from pathlib import Path
 from typing import Literal
 
 from pydantic import Field
@@ -50,6 +51,8 @@ class AvoidanceConfig(Strict):
             so that PX4 can be switched to OFFBOARD (it needs a stream above 2 Hz first).
         follow_mission: Fly the autopilot's mission (NAV_WAYPOINT items) as goals.
         goal: A goal to fly to from start (tests, bench work); goals from MAVLink replace it.
+        params_file: Where the AVD_* parameters set in flight are kept (JSON, read back at
+            start; None: not kept). Under systemd: ``/var/lib/avoidd/params.json``.
     """
 
     enabled: bool = False
@@ -69,3 +72,4 @@ class AvoidanceConfig(Strict):
     px4_prestream: bool = True
     follow_mission: bool = False
     goal: GoalConfig | None = None
+    params_file: Path | None = None

@@ -26,6 +26,7 @@ from collections.abc import Callable
 
 from avoidd.config import AvoidanceConfig
 from avoidd.daemon.outputs import Outputs, every
+from avoidd.daemon.params import BY_NAME, PARAMS, ParamTable
 from avoidd.mavlink import codec as mav
 from avoidd.mavlink.codec import Message
 from avoidd.mavlink.link import MavLink
@@ -70,6 +71,8 @@ class AvoidanceLoop:
         announce: Callable[[int, str, str | None], None],
         max_range_m: float,
     ) -> None:
+        self.params = ParamTable(config, config.params_file)
+        config = self.params.config
         self.config = config
         self.outputs = outputs
         self.vehicle = vehicle
@@ -78,7 +81,7 @@ class AvoidanceLoop:
         self.planner = Planner(config, max_range_m)
         goal = config.goal
         self.goal = Goal(goal.north_m, goal.east_m, goal.altitude_m) if goal else None
-        self.state = "starting"
+        self.state = "starting" if config.enabled else _REASONS["enabled"]
         """What the loop did last cycle: a gate reason or the planner's state."""
         self.last_decision: Decision | None = None
         self.sent = 0
@@ -115,6 +118,9 @@ class AvoidanceLoop:
 
     def step(self, now_ns: int) -> Message | None:
         """One cycle: the setpoint to send now, or None."""
+        if not self.config.enabled:
+            self._transition(_REASONS["enabled"])
+            return None
         scan = self.outputs.current_scan(now_ns)
         if scan is not None:
             at_capture = self._pose(scan.t_capture_ns)
@@ -173,7 +179,7 @@ class AvoidanceLoop:
         previous, self.state = self.state, state
         logger.info("avoidance: %s (was %s)", state, previous)
         severity = mav.MAV_SEVERITY_INFO
-        text = f"avoidd: avoidance {state}"
+        text = f"avoidd: {state}" if state.startswith("avoidance") else f"avoidd: avoidance {state}"
         if state == "no path":
             severity, text = mav.MAV_SEVERITY_WARNING, "avoidd: no path to goal"
         elif state == "stale":
@@ -191,6 +197,9 @@ class AvoidanceLoop:
         autopilot's origin, not taken yet), with a STATUSTEXT saying what to send instead.
         """
         kind = message.get_type()
+        if kind.startswith("PARAM_"):
+            self._param(message)
+            return
         if kind == "SET_POSITION_TARGET_LOCAL_NED":
             position_ignored = message.type_mask & 0x7
             finite = all(math.isfinite(v) for v in (message.x, message.y, message.z))
@@ -228,6 +237,55 @@ class AvoidanceLoop:
             return
         logger.warning("%s addressed to avoidd: not supported", kind)
 
+    def _param(self, message: Message) -> None:
+        """Answer the parameter protocol (see :mod:`avoidd.daemon.params`)."""
+        kind = message.get_type()
+        names: list[str] = []
+        if kind == "PARAM_REQUEST_LIST":
+            names = [p.name for p in PARAMS]
+        elif kind == "PARAM_REQUEST_READ":
+            index = int(message.param_index)
+            name = _param_name(message.param_id)
+            if 0 <= index < len(PARAMS):
+                name = PARAMS[index].name
+            names = [name] if name in BY_NAME else []
+        elif kind == "PARAM_SET":
+            name = _param_name(message.param_id)
+            if name not in BY_NAME:
+                logger.warning("PARAM_SET %s: no such avoidd parameter", name)
+                return
+            value = float(message.param_value)
+            if self.params.set(name, value):
+                self._apply(self.params.config)
+                logger.info("avoidance: %s set to %g", name, value)
+            else:
+                param = BY_NAME[name]
+                logger.warning(
+                    "PARAM_SET %s=%g refused: outside %g..%g", name, value, param.low, param.high
+                )
+                self.announce(
+                    mav.MAV_SEVERITY_WARNING,
+                    f"avoidd: {name} must be {param.low:g}..{param.high:g}",
+                    None,
+                )
+            names = [name]
+        for name in names:
+            index = next(i for i, p in enumerate(PARAMS) if p.name == name)
+            self.link.send(
+                self.link.codec.build(
+                    "PARAM_VALUE",
+                    name.encode(),
+                    self.params.value(name),
+                    mav.MAV_PARAM_TYPE_REAL32,
+                    len(PARAMS),
+                    index,
+                )
+            )
+
+    def _apply(self, config: AvoidanceConfig) -> None:
+        self.config = config
+        self.planner.reconfigure(config)
+
     def set_goal(self, goal: Goal) -> None:
         """Fly to a new goal from now on (the obstacle memory is kept)."""
         self.goal = goal
@@ -255,3 +313,9 @@ class AvoidanceLoop:
                 self.sent += 1
 
         await every(self.config.setpoint_rate_hz, send)
+
+
+def _param_name(raw: bytes | str) -> str:
+    """A PARAM_* message's param_id as text (16 chars, NUL-padded unless full length)."""
+    text = raw.decode(errors="replace") if isinstance(raw, bytes) else raw
+    return text.split("\x00", 1)[0]

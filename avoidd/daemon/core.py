@@ -227,17 +227,18 @@ class Daemon:
             self.vehicle,
         )
         loops = self.outputs.loops()
-        if self.config.avoidance.enabled:
-            self.avoidance = AvoidanceLoop(
-                self.config.avoidance,
-                self.outputs,
-                self.vehicle,
-                self.link,
-                self.announce,
-                self.config.mavlink.obstacle_distance.max_distance_cm / 100.0,
-            )
-            self.vehicle.on_command = self.avoidance.handle_command
-            loops["avoidance"] = self.avoidance.run()
+        # Always there, to answer the AVD_* parameters (AVD_ENABLE switches it in flight);
+        # silent while avoidance is off.
+        self.avoidance = AvoidanceLoop(
+            self.config.avoidance,
+            self.outputs,
+            self.vehicle,
+            self.link,
+            self.announce,
+            self.config.mavlink.obstacle_distance.max_distance_cm / 100.0,
+        )
+        self.vehicle.on_command = self.avoidance.handle_command
+        loops["avoidance"] = self.avoidance.run()
         loops["heartbeat"] = self._heartbeat_loop()
         loops["statustext"] = send_statustext(announcer, self.link, self._check_staleness)
         loops["log"] = log_every(

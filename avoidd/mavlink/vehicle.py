@@ -97,6 +97,9 @@ ADDRESSED_TO_US = frozenset(
         "SET_POSITION_TARGET_GLOBAL_INT",
         "COMMAND_LONG",
         "COMMAND_INT",
+        "PARAM_REQUEST_LIST",
+        "PARAM_REQUEST_READ",
+        "PARAM_SET",
     }
 )
 """Message types avoidd takes when addressed to its own component (goals, commands)."""

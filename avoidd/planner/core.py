@@ -157,6 +157,14 @@ class Planner:
         self._directions = directions_rad()
         self._admissible = np.zeros(self._directions.size, dtype=np.bool_)
 
+    def reconfigure(self, config: AvoidanceConfig) -> None:
+        """Take new settings (parameters set in flight); the memory is kept."""
+        memory, visibility = self.memory, self.visibility
+        self.config = config
+        self.__post_init__()
+        self.memory, self.visibility = memory, visibility
+        self.memory.memory_s = config.memory_s
+
     @property
     def clearance_m(self) -> float:
         """Vehicle radius plus margin: how far every obstacle is kept."""
