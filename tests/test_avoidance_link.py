@@ -218,3 +218,60 @@ async def test_parameters_list_read_set_range_check_and_persist(tmp_path: Path) 
 
     table = ParamTable(AvoidanceConfig(params_file=params_file), params_file)
     assert table.config.enabled and table.config.margin_m == 1.5
+
+
+async def test_goals_only_from_the_vehicle_or_a_ground_station_and_qgc_style_reads(
+    tmp_path: Path,
+) -> None:
+    autopilot = MockAutopilot(system_id=7, mode="LOITER", armed=True)
+    daemon, task = await _pair(tmp_path, autopilot)
+    stranger = mav.Codec(99, 1)  # another vehicle on the network
+    ground = mav.Codec(255, 190)
+    try:
+        assert await wait_for(lambda: daemon.vehicle.link_up, 10)
+        me = mav.MAV_COMP_ID_OBSTACLE_AVOIDANCE
+
+        def goal(codec: mav.Codec, north: float) -> Any:
+            fields = (0, 7, me, mav.MAV_FRAME_LOCAL_NED, 0x0FF8, north, 0.0, -3.0)
+            return codec.build("SET_POSITION_TARGET_LOCAL_NED", *fields, *([0.0] * 8))
+
+        assert autopilot.transport is not None
+        autopilot.transport.send(stranger.pack(goal(stranger, 50.0)))
+        await asyncio.sleep(0.5)
+        assert daemon.avoidance.goal.north_m == 30.0  # ignored
+        heartbeat = ground.build("HEARTBEAT", mav.MAV_TYPE_GCS, 8, 0, 0, 0)
+        autopilot.transport.send(ground.pack(heartbeat))
+        autopilot.transport.send(ground.pack(goal(ground, 40.0)))
+        assert await wait_for(lambda: daemon.avoidance.goal.north_m == 40.0, 5)
+        # QGroundControl asks every component (0) for the parameter list.
+        autopilot.transport.send(ground.pack(ground.build("PARAM_REQUEST_LIST", 7, 0)))
+        assert await wait_for(lambda: len(autopilot.of_type("PARAM_VALUE")) >= 7, 5)
+    finally:
+        await stop(daemon, task)
+        await autopilot.stop()
+
+
+async def test_switching_avoidance_off_in_flight_holds_for_a_second_then_goes_silent(
+    tmp_path: Path,
+) -> None:
+    autopilot = MockAutopilot(system_id=7, mode="GUIDED", armed=True)
+    daemon, task = await _pair(tmp_path, autopilot)
+    me = mav.MAV_COMP_ID_OBSTACLE_AVOIDANCE
+    try:
+        flying = {"moving", "dead end", "no path", "arrived"}
+        assert await wait_for(
+            lambda: daemon.avoidance is not None and daemon.avoidance.state in flying, 15
+        )
+        autopilot.send(autopilot.codec.build("PARAM_SET", 7, me, b"AVD_ENABLE", 0.0, 9))
+        assert await wait_for(lambda: daemon.avoidance.state == "avoidance off", 5)
+        start_count = len(_setpoints(autopilot))
+        await asyncio.sleep(0.5)
+        holding = _setpoints(autopilot)[start_count:]
+        assert holding and all((m.vx, m.vy, m.vz) == (0, 0, 0) for m in holding)
+        await asyncio.sleep(1.0)
+        count = len(_setpoints(autopilot))
+        await asyncio.sleep(0.5)
+        assert len(_setpoints(autopilot)) <= count + 1
+    finally:
+        await stop(daemon, task)
+        await autopilot.stop()

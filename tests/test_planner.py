@@ -254,8 +254,10 @@ def test_boxed_in_means_turn_to_look_then_no_path() -> None:
     first = planner.decide(S, _pose(1.0), goal, fresh=True)
     assert first.state == "dead end"
     assert first.holding and first.yaw_rate_rad_s != 0.0
-    planner.observe_scan(walls, int(3.5 * S), _pose(3.5))
-    last = planner.decide(int(3.5 * S), _pose(3.5), goal, fresh=True)
+    for step in range(1, 51):  # 2.5 s of cycles at 20 Hz
+        t = 1.0 + 0.05 * step
+        planner.observe_scan(walls, int(t * S), _pose(t))
+        last = planner.decide(int(t * S), _pose(t), goal, fresh=True)
     assert last.state == "no path"
     assert last.holding and last.yaw_rate_rad_s == 0.0
 
@@ -263,3 +265,15 @@ def test_boxed_in_means_turn_to_look_then_no_path() -> None:
 def test_the_72_directions_are_five_degrees_apart_from_north() -> None:
     d = np.degrees(directions_rad())
     assert d[0] == 0.0 and d[1] == 5.0 and len(d) == 72
+
+
+def test_time_not_planning_is_not_time_without_progress() -> None:
+    planner = _planner(no_progress_s=5.0)
+    goal = Goal(30.0, 0.0, 2.0)
+    wall = _scan({i: 2.0 for i in range(-3, 4)})
+    planner.observe_scan(wall, S, _pose(1.0))
+    planner.decide(S, _pose(1.0), goal, fresh=True)
+    # Ten seconds in another mode (no decisions), then planning again: not given up.
+    planner.observe_scan(_scan({}), 11 * S, _pose(11.0))
+    decision = planner.decide(11 * S, _pose(11.0), goal, fresh=True)
+    assert decision.state != "no path"

@@ -37,7 +37,7 @@ PLANE = 1  # MAV_TYPE_FIXED_WING
         (COPTER, 0, "STABILIZE", False),
         (COPTER, 4, "GUIDED", True),
         (COPTER, 5, "LOITER", False),
-        (COPTER, 20, "GUIDED_NOGPS", True),
+        (COPTER, 20, "GUIDED_NOGPS", False),  # attitude targets only, no velocity
         (PLANE, 15, "GUIDED", True),
         (PLANE, 10, "AUTO", False),
         (ROVER, 15, "GUIDED", True),

@@ -22,7 +22,9 @@ def configure(name: str, parser: argparse.ArgumentParser) -> None:
     run.set_defaults(handler=run_one)
     batch = actions.add_parser("batch", help="run many scenarios and seeds; print a table")
     batch.add_argument("scenarios", type=Path, nargs="+", help="scenario files")
-    batch.add_argument("--seeds", type=int, default=1, help="seeds per scenario (1, 2, ...)")
+    batch.add_argument(
+        "--seeds", type=int, default=1, help="seeds per scenario: its own, then the next ones"
+    )
     batch.add_argument("--workers", type=int, default=os.cpu_count() or 1, help="local processes")
     batch.add_argument("--json", type=Path, help="also write every summary as JSON")
     batch.set_defaults(handler=run_batch)
@@ -56,7 +58,9 @@ def run_batch(args: argparse.Namespace) -> int:
 
     for path in args.scenarios:
         load_scenario(path)  # every file valid before anything runs
-    jobs = [(path, seed) for path in args.scenarios for seed in range(1, args.seeds + 1)]
+    jobs = [
+        (path, own_seed(path) + offset) for path in args.scenarios for offset in range(args.seeds)
+    ]
     progress = Progress(len(jobs))
     results: list[dict[str, Any]] = []
     with ProcessPoolExecutor(max_workers=max(1, args.workers)) as pool:
@@ -107,3 +111,13 @@ def format_totals(results: list[dict[str, Any]]) -> str:
         f"{count} runs: {collisions} collisions, {len(reached)} goals reached, "
         f"{passed} passed; mean time to goal {_number(mean_time, 1)} s"
     )
+
+
+def own_seed(path: Path) -> int:
+    """A scenario's own seed: its generator's, or its world file's."""
+    from avoidd.config.sim import GeneratedWorldConfig, load_scenario, load_world
+
+    scenario = load_scenario(path)
+    if isinstance(scenario.world, GeneratedWorldConfig):
+        return scenario.world.seed
+    return load_world(scenario.world).seed

@@ -41,6 +41,10 @@ VELOCITY_YAW_RATE_MASK = 0x05C7
 """SET_POSITION_TARGET type_mask: use velocity and yaw rate; ignore position, acceleration
 and yaw (bits 0-2, 6-8 and 10 set)."""
 
+_SWITCH_OFF_HOLD_NS = 1_000_000_000
+_DO_REPOSITION = 192
+_MIN_GOAL_ALTITUDE_M = 0.5
+
 _REASONS = {
     "link": "link down",
     "armed": "disarmed",
@@ -84,6 +88,7 @@ class AvoidanceLoop:
         self.state = "starting" if config.enabled else _REASONS["enabled"]
         """What the loop did last cycle: a gate reason or the planner's state."""
         self.last_decision: Decision | None = None
+        self._switched_off_ns = -(10**18)
         self.sent = 0
 
     def facts(self, fresh: bool) -> Facts:
@@ -100,16 +105,21 @@ class AvoidanceLoop:
             prestream=self.config.px4_prestream,
         )
 
-    def _pose(self, t_ns: int) -> Pose | None:
-        """The vehicle's local position with the yaw at ``t_ns`` (None without a position)."""
-        position = self.vehicle.position
+    def _pose(self, t_ns: int, now_ns: int) -> Pose | None:
+        """The vehicle's state at ``t_ns`` (None without a recent local position).
+
+        Yaw comes from the attitude history; the position is carried from the latest
+        LOCAL_POSITION_NED to ``t_ns`` with its velocity.
+        """
+        position = self.vehicle.fresh_position(now_ns)
         attitude = self.vehicle.attitude_at(t_ns)
         if position is None or attitude is None:
             return None
+        dt_s = (t_ns - position.t_ns) / 1e9
         return Pose(
             t_ns,
-            position.north_m,
-            position.east_m,
+            position.north_m + position.vn_m_s * dt_s,
+            position.east_m + position.ve_m_s * dt_s,
             position.down_m,
             attitude.yaw_rad,
             position.vn_m_s,
@@ -119,14 +129,21 @@ class AvoidanceLoop:
     def step(self, now_ns: int) -> Message | None:
         """One cycle: the setpoint to send now, or None."""
         if not self.config.enabled:
+            was_flying = self.state not in _REASONS.values() and self.state != "starting"
+            if was_flying:
+                self._switched_off_ns = now_ns
             self._transition(_REASONS["enabled"])
+            # Switched off in flight: hold for a second (silence leaves ArduPilot flying the
+            # last velocity for 3 s), then send nothing.
+            if now_ns - self._switched_off_ns < _SWITCH_OFF_HOLD_NS and self._in_setpoint_mode():
+                return self._setpoint(now_ns, self.planner.hold("avoidance off"))
             return None
         scan = self.outputs.current_scan(now_ns)
         if scan is not None:
-            at_capture = self._pose(scan.t_capture_ns)
+            at_capture = self._pose(scan.t_capture_ns, now_ns)
             if at_capture is not None:
                 self.planner.observe_scan(scan.distance_m, scan.t_capture_ns, at_capture)
-        pose = self._pose(now_ns)
+        pose = self._pose(now_ns, now_ns)
         facts = self.facts(fresh=scan is not None and pose is not None)
         verdict = gate(facts)
         if verdict is Gate.SILENT:
@@ -143,6 +160,10 @@ class AvoidanceLoop:
         self.last_decision = decision
         self._transition(decision.state)
         return self._setpoint(now_ns, decision)
+
+    def _in_setpoint_mode(self) -> bool:
+        mode = self.vehicle.mode
+        return bool(self.vehicle.link_up and mode is not None and mode.armed and mode.guided)
 
     def _silent_reason(self, facts: Facts) -> str:
         for name in ("enabled", "link", "armed", "goal"):
@@ -214,7 +235,12 @@ class AvoidanceLoop:
                 )
                 self.announce(mav.MAV_SEVERITY_WARNING, "avoidd: goal refused: frame/mask", None)
                 return
-            self.set_goal(Goal(float(message.x), float(message.y), -float(message.z), "GCS goal"))
+            altitude_m = -float(message.z)
+            if altitude_m < _MIN_GOAL_ALTITUDE_M or max(abs(message.x), abs(message.y)) > 10_000:
+                logger.warning("goal refused: altitude %.1f m or more than 10 km away", altitude_m)
+                self.announce(mav.MAV_SEVERITY_WARNING, "avoidd: goal refused: too low/far", None)
+                return
+            self.set_goal(Goal(float(message.x), float(message.y), altitude_m, "GCS goal"))
             return
         if kind in ("COMMAND_LONG", "COMMAND_INT"):
             command = int(message.command)
@@ -229,11 +255,12 @@ class AvoidanceLoop:
                 message.get_srcComponent(),
             )
             self.link.send(ack)
-            self.announce(
-                mav.MAV_SEVERITY_WARNING,
-                "avoidd: use SET_POSITION_TARGET_LOCAL_NED for goals",
-                "command",
-            )
+            if command == _DO_REPOSITION:
+                self.announce(
+                    mav.MAV_SEVERITY_WARNING,
+                    "avoidd: use SET_POSITION_TARGET_LOCAL_NED for goals",
+                    "command",
+                )
             return
         logger.warning("%s addressed to avoidd: not supported", kind)
 

@@ -14,7 +14,8 @@ from avoidd.mavlink import codec as mav
 ARDUPILOT = "ArduPilot"
 PX4 = "PX4"
 
-_GUIDED_MODES = {ARDUPILOT: {"GUIDED", "GUIDED_NOGPS"}, PX4: {"OFFBOARD"}}
+_GUIDED_MODES = {ARDUPILOT: {"GUIDED"}, PX4: {"OFFBOARD"}}
+"""Modes that fly velocity setpoints (ArduPilot's GUIDED_NOGPS takes attitude targets only)."""
 
 
 @dataclass(frozen=True)

@@ -147,6 +147,8 @@ class Vehicle:
         self._pending: StreamRequest | None = None
         self._pending_sent_s = 0.0
         self.on_command: Callable[[mav.Message], None] | None = None
+        self.ground_stations: set[int] = set()
+        """Systems whose HEARTBEAT says MAV_TYPE_GCS (trusted with goals and parameters)."""
         """Receives the messages in ``ADDRESSED_TO_US`` sent to avoidd's own component."""
         link.codec.system_id = self.system_id or DEFAULT_SYSTEM_ID
         link.subscribe(self.handle)
@@ -163,9 +165,15 @@ class Vehicle:
             self.system_id = source
             self._link.codec.system_id = source
             logger.info("MAVLink: adopted vehicle system %d", source)
+        if kind == "HEARTBEAT" and message.type == mav.MAV_TYPE_GCS:
+            self.ground_stations.add(source)
         if kind in ADDRESSED_TO_US and self._addressed_to_us(message):
-            # Goals and commands for avoidd itself, from the autopilot or a ground station.
-            if self.on_command is not None:
+            # Goals and commands for avoidd itself: only from the vehicle's own system or a
+            # system that announced itself as a ground station.
+            trusted = source == self.system_id or source in self.ground_stations
+            if not trusted:
+                self.ignored[source] += 1
+            elif self.on_command is not None:
                 self.on_command(message)
             return
         if source != self.system_id:
@@ -182,10 +190,20 @@ class Vehicle:
 
     def _addressed_to_us(self, message: mav.Message) -> bool:
         codec = self._link.codec
+        # Parameter reads go to every component (QGroundControl asks MAV_COMP_ID_ALL);
+        # goals, sets and commands only to ours.
+        reads = message.get_type() in ("PARAM_REQUEST_LIST", "PARAM_REQUEST_READ")
+        components = (0, codec.component_id) if reads else (codec.component_id,)
         return bool(
-            message.target_component == codec.component_id
-            and message.target_system in (0, codec.system_id)
+            message.target_component in components and message.target_system in (0, codec.system_id)
         )
+
+    def fresh_position(self, now_ns: int, max_age_ns: int = 500_000_000) -> LocalPosition | None:
+        """The local position if it is recent (an EKF or GPS loss stops the stream)."""
+        position = self.position
+        if position is None or now_ns - position.t_ns > max_age_ns:
+            return None
+        return position
 
     def _is_autopilot_heartbeat(self, message: mav.Message) -> bool:
         return bool(

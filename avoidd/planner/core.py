@@ -41,6 +41,8 @@ _BUFFER_M = 0.25
 _BUFFER_S = 0.15
 """Turning buffer: metres, and metres per m/s of speed (see :meth:`Planner.decide`)."""
 _YAW_GAIN = 2.0
+_PAUSE_NS = 1_000_000_000
+"""A gap this long between decisions means planning was paused (its timers restart)."""
 _INSIDE_SLACK_M = 0.05
 """Within the clearance of a point, the ways that bring the vehicle this much nearer close."""
 _ARRIVED_ALTITUDE_M = 0.5
@@ -142,6 +144,7 @@ class Planner:
     _best_since_ns: int | None = None
     _given_up: bool = False
     _scan_side: float = 1.0
+    _last_decide_ns: int | None = None
 
     def __post_init__(self) -> None:
         self.memory = ObstacleMemory(self.config.memory_s)
@@ -196,7 +199,7 @@ class Planner:
         )
 
     def hold(self, state: str, goal_distance_m: float | None = None) -> Decision:
-        """Stay here: zero velocity, no turning."""
+        """Stay here: zero velocity, no turning (not a decision: planning is paused)."""
         return Decision((0.0, 0.0, 0.0), 0.0, state, goal_distance_m=goal_distance_m)
 
     def obstacle_free_m(
@@ -249,6 +252,12 @@ class Planner:
             The decision.
         """
         config = self.config
+        if self._last_decide_ns is not None and now_ns - self._last_decide_ns > _PAUSE_NS:
+            # Not planning for a while (another mode, a stale hold): time spent so is not
+            # time without progress, nor time spent looking for a way.
+            self._best_since_ns = None
+            self._dead_end_since_ns = None
+        self._last_decide_ns = now_ns
         self.memory.expire(now_ns)
         to_north, to_east = goal.north_m - pose.north_m, goal.east_m - pose.east_m
         goal_m = math.hypot(to_north, to_east)

@@ -32,7 +32,7 @@ class Facts:
         enabled: Avoidance is on (config, or the AVD_ENABLE parameter).
         link_up: The autopilot's heartbeat is fresh.
         armed: The vehicle is armed.
-        setpoint_mode: Its mode takes setpoints (GUIDED, GUIDED_NOGPS, OFFBOARD).
+        setpoint_mode: Its mode flies velocity setpoints (ArduPilot GUIDED, PX4 OFFBOARD).
         px4: The autopilot is PX4.
         goal: A goal is active.
         fresh: Perception is fresh.

@@ -19,6 +19,8 @@ from avoidd.types import SECTOR_COUNT, SECTOR_WIDTH_DEG
 
 Array = npt.NDArray[np.float64]
 
+_CELL_M = 0.1
+"""Remembered points are kept one per cell of this size."""
 _SEE_PAST_M = 0.3
 """A remembered point is gone only when a new reading sees this far beyond it."""
 
@@ -84,6 +86,14 @@ class ObstacleMemory:
             self.t_ns = np.concatenate(
                 [self.t_ns, np.full(int(finite.sum()), t_capture_ns, dtype=np.int64)]
             )
+        if finite.any():
+            # One point per cell (the newest): an obstacle in view for seconds stays one set
+            # of points, so the cap drops what is out of view only after the memory time.
+            keys = np.floor(self.north_east / _CELL_M).astype(np.int64)
+            key = keys[:, 0] * 1_000_003 + keys[:, 1]
+            _, last = np.unique(key[::-1], return_index=True)
+            keep = np.sort(key.size - 1 - last)
+            self.north_east, self.t_ns = self.north_east[keep], self.t_ns[keep]
         if self.t_ns.size > self.max_points:
             self.north_east = self.north_east[-self.max_points :]
             self.t_ns = self.t_ns[-self.max_points :]

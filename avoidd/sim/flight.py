@@ -30,7 +30,7 @@ PROXIMITY_TIMEOUT_NS = 500_000_000
 AVOID_KP = 1.0
 AVOID_ACCEL_M_S2 = 1.0
 
-_TAKES_SETPOINTS = {"ardupilot": {"GUIDED", "GUIDED_NOGPS"}, "px4": {"OFFBOARD"}}
+_TAKES_SETPOINTS = {"ardupilot": {"GUIDED"}, "px4": {"OFFBOARD"}}
 _HOLD_MODE = {"ardupilot": "LOITER", "px4": "POSCTL"}
 
 
