@@ -430,9 +430,10 @@ class StereoRenderer:
             t_out = np.minimum(t_out, far)
         hit = (t_in <= t_out) & (t_in > _NEAR_M)
         t = np.where(hit, t_in, np.inf).astype(np.float32)
-        a = pa + t * ra
-        c = pc + t * rc
-        d = od + t * rd
+        with np.errstate(invalid="ignore"):  # inf * 0 where nothing is hit (not kept)
+            a = pa + t * ra
+            c = pc + t * rc
+            d = od + t * rd
         length = np.sqrt(ra * ra + rc * rc + rd * rd)
         s = np.where(face == 0, c, a)
         u = np.where(face == 2, c, d)
