@@ -17,11 +17,10 @@ from pathlib import Path
 
 import numpy as np
 
-from avoidd.config import HeadConfig, PerceptionConfig
-from avoidd.evaluation.scenes import NEAR_RIG, SceneCase, truth_bins
+from avoidd.config import PerceptionConfig
+from avoidd.evaluation.scenes import NEAR_RIG, SceneCase, noisy_frame, suite_head, truth_bins
 from avoidd.pipeline import HeadPipeline
-from avoidd.sources.scene import Box, Pole, Scene, render_pair, to_uint8
-from avoidd.types import StereoFrame
+from avoidd.sources.scene import Box, Pole, Scene, render_pair
 from avoidd.vision.calibration import Calibration
 
 _HEIGHT_M = 1.5
@@ -91,33 +90,13 @@ def near_suite(count: int = 24, seed: int = 3030) -> list[SceneCase]:
     return cases
 
 
-def _head(case: SceneCase) -> HeadConfig:
-    return HeadConfig.model_validate(
-        {
-            "name": "front",
-            # Validated as an existing file but never read: the suite hands the rig over.
-            "calibration": __file__,
-            "mount": {"pitch_deg": case.mount_pitch_deg},
-            "source": {"kind": "synthetic"},
-            "matcher": {"kind": "sgbm", "num_disparities": 64},
-        }
-    )
-
-
 def run_near_case(case: SceneCase, noise_std: float = 1.5) -> NearResult:
     """Render one near scene, run the pipeline and compare every occupied bin with the truth."""
     rendered = render_pair(case.scene, case.rig)
-    rng = np.random.default_rng(case.scene.seed)
-    left = to_uint8(
-        rendered.left, rng.normal(0.0, noise_std, rendered.left.shape).astype(np.float32)
-    )
-    right = to_uint8(
-        rendered.right, rng.normal(0.0, noise_std, rendered.right.shape).astype(np.float32)
-    )
-    frame = StereoFrame(0, 0, left, right, rendered.truth, case.pose)
+    frame = noisy_frame(case, rendered, noise_std)
     perception = PerceptionConfig()
     pipeline = HeadPipeline(
-        _head(case), Calibration(case.rig, None, Path("near")), _MAX_RANGE_M, perception
+        suite_head(case, 64), Calibration(case.rig, None, Path("near")), _MAX_RANGE_M, perception
     )
     result = pipeline.process(frame)
     # Bins where the obstacle covers at least the smallest object the sensor promises to see

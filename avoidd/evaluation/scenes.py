@@ -23,7 +23,15 @@ from avoidd.perception.geometry import ground_range
 from avoidd.perception.measure import camera_geometry
 from avoidd.perception.sectors import bin_of_bearing
 from avoidd.pipeline import HeadPipeline
-from avoidd.sources.scene import FIRST_OBSTACLE_ID, Box, Pole, Scene, render_pair, to_uint8
+from avoidd.sources.scene import (
+    FIRST_OBSTACLE_ID,
+    Box,
+    Pole,
+    RenderedPair,
+    Scene,
+    render_pair,
+    to_uint8,
+)
 from avoidd.sources.truth import level_points, nearest_obstacle
 from avoidd.types import SECTOR_COUNT, FramePose, Mount, RectifiedRig, StereoFrame
 from avoidd.vision.calibration import Calibration
@@ -136,7 +144,8 @@ def suite(count: int = 24, seed: int = 2024) -> list[SceneCase]:
     return cases
 
 
-def _head(case: SceneCase) -> HeadConfig:
+def suite_head(case: SceneCase, num_disparities: int = 128) -> HeadConfig:
+    """The head a rendered suite runs: SGBM, the case's mount pitch."""
     return HeadConfig.model_validate(
         {
             "name": "front",
@@ -144,26 +153,26 @@ def _head(case: SceneCase) -> HeadConfig:
             "calibration": __file__,
             "mount": {"pitch_deg": case.mount_pitch_deg},
             "source": {"kind": "synthetic"},
-            "matcher": {"kind": "sgbm", "num_disparities": 128},
+            "matcher": {"kind": "sgbm", "num_disparities": num_disparities},
         }
     )
+
+
+def noisy_frame(case: SceneCase, rendered: RenderedPair, noise_std: float) -> StereoFrame:
+    """The rendered pair as a camera delivers it: seeded sensor noise, 8 bits, the pose."""
+    rng = np.random.default_rng(case.scene.seed)
+    left, right = (
+        to_uint8(view, rng.normal(0.0, noise_std, view.shape).astype(np.float32))
+        for view in (rendered.left, rendered.right)
+    )
+    return StereoFrame(0, 0, left, right, rendered.truth, case.pose)
 
 
 def run_case(case: SceneCase, noise_std: float = 1.5) -> SceneResult:
     """Render one scene, run the pipeline on it and score it against its truth."""
     rendered = render_pair(case.scene, case.rig)
-    rng = np.random.default_rng(case.scene.seed)
-    frame = StereoFrame(
-        0,
-        0,
-        to_uint8(rendered.left, rng.normal(0.0, noise_std, rendered.left.shape).astype(np.float32)),
-        to_uint8(
-            rendered.right, rng.normal(0.0, noise_std, rendered.right.shape).astype(np.float32)
-        ),
-        rendered.truth,
-        case.pose,
-    )
-    head = _head(case)
+    frame = noisy_frame(case, rendered, noise_std)
+    head = suite_head(case)
     perception = PerceptionConfig()
     pipeline = HeadPipeline(
         head, Calibration(case.rig, None, Path("suite")), _MAX_RANGE_M, perception
