@@ -82,11 +82,6 @@ def load_all(path: Path, input_given: bool = False) -> tuple[AppConfig, dict[str
                 f"mavlink.signing.timestamp_file: folder {folder} missing or not writable; "
                 "create it (systemd: StateDirectory=avoidd)"
             )
-    if config.avoidance.follow_mission:
-        problems.append(
-            f"{path}: avoidance.follow_mission: the mission is not downloaded yet; set it false "
-            "and give avoidance.goal"
-        )
     problems.extend(_check_min_distance(path, config, calibrations))
     if not input_given:
         problems.extend(_check_recordings(path, config))

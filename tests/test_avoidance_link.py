@@ -5,11 +5,15 @@ from __future__ import annotations
 
 import asyncio
 import json
+import math
 from pathlib import Path
 from typing import Any
 
+import pytest
+
 from avoidd.daemon.avoidance import VELOCITY_YAW_RATE_MASK
 from avoidd.mavlink import codec as mav
+from avoidd.mavlink.mission import MissionItem
 from avoidd.mavlink.mock_autopilot import MockAutopilot
 from tests.helpers import free_udp_port, synthetic_config, wait_for
 from tests.helpers import start_daemon as start
@@ -20,10 +24,12 @@ AVOIDANCE = {
 }
 
 
-async def _pair(tmp_path: Path, autopilot: MockAutopilot) -> tuple[Any, asyncio.Task[int]]:
+async def _pair(
+    tmp_path: Path, autopilot: MockAutopilot, sections: dict[str, Any] | None = None
+) -> tuple[Any, asyncio.Task[int]]:
     port = free_udp_port()
     await autopilot.start(f"udpin:127.0.0.1:{port}")
-    config = synthetic_config(tmp_path, f"udpout:127.0.0.1:{port}", sections=AVOIDANCE)
+    config = synthetic_config(tmp_path, f"udpout:127.0.0.1:{port}", sections=sections or AVOIDANCE)
     return await start(config)
 
 
@@ -139,7 +145,7 @@ async def test_a_goal_addressed_to_avoidd_replaces_the_current_one_and_commands_
             ),
             3,
         )
-        # A global reposition is not taken yet: refused with an ACK and a pointer.
+        # DO_REPOSITION as COMMAND_LONG (no frame for its altitude): refused, as ArduPilot does.
         reposition = autopilot.codec.build(
             "COMMAND_LONG",
             7,
@@ -272,6 +278,103 @@ async def test_switching_avoidance_off_in_flight_holds_for_a_second_then_goes_si
         count = len(_setpoints(autopilot))
         await asyncio.sleep(0.5)
         assert len(_setpoints(autopilot)) <= count + 1
+    finally:
+        await stop(daemon, task)
+        await autopilot.stop()
+
+
+ORIGIN = (47.3977419, 8.5455938, 488.0)
+
+
+def _item(seq: int, north_deg: float, east_deg: float, up_m: float) -> MissionItem:
+    lat, lon = round((ORIGIN[0] + north_deg) * 1e7), round((ORIGIN[1] + east_deg) * 1e7)
+    frame = mav.MAV_FRAME_GLOBAL_RELATIVE_ALT_INT
+    return MissionItem(seq, frame, mav.MAV_CMD_NAV_WAYPOINT, lat, lon, up_m)
+
+
+def _texts(autopilot: MockAutopilot) -> list[str]:
+    return [m.text for m in autopilot.of_type("STATUSTEXT")]
+
+
+async def test_global_goals_wait_for_the_origin_and_are_acknowledged(tmp_path: Path) -> None:
+    autopilot = MockAutopilot(system_id=7, mode="GUIDED", armed=True, home_up_m=0.5)
+    sections = {"avoidance": {"enabled": True}}
+    daemon, task = await _pair(tmp_path, autopilot, sections)
+    me = mav.MAV_COMP_ID_OBSTACLE_AVOIDANCE
+    lat, lon = round((ORIGIN[0] + 0.001) * 1e7), round((ORIGIN[1] + 0.001) * 1e7)
+
+    def acks(result: int) -> int:
+        return sum(
+            m.command == mav.MAV_CMD_DO_REPOSITION and m.result == result
+            for m in autopilot.of_type("COMMAND_ACK")
+        )
+
+    reposition = autopilot.codec.build(
+        "COMMAND_INT", 7, me, mav.MAV_FRAME_GLOBAL_RELATIVE_ALT_INT,
+        mav.MAV_CMD_DO_REPOSITION, 0, 0, -1, 0, 0, math.nan, lat, lon, 10.0,
+    )  # fmt: skip
+    try:
+        assert await wait_for(lambda: daemon.vehicle.link_up, 10)
+        # No GPS yet: the autopilot has no origin, so a global goal cannot be placed.
+        autopilot.send(reposition)
+        assert await wait_for(lambda: acks(mav.MAV_RESULT_TEMPORARILY_REJECTED) == 1, 5)
+        assert daemon.avoidance.goal is None
+        refused = "avoidd: goal refused: no GPS origin yet"
+        assert await wait_for(lambda: refused in _texts(autopilot), 5)
+        # A fix: avoidd asks for the origin and home again and then takes the same command.
+        autopilot.origin = ORIGIN
+        assert await wait_for(lambda: daemon.vehicle.origin is not None, 6)
+        assert await wait_for(lambda: daemon.vehicle.home_up_m is not None, 6)
+        autopilot.send(reposition)
+        assert await wait_for(lambda: acks(mav.MAV_RESULT_ACCEPTED) == 1, 5)
+        goal = daemon.avoidance.goal
+        assert goal.north_m == pytest.approx(111.32, abs=0.05)
+        assert goal.east_m == pytest.approx(111.32 * math.cos(math.radians(47.398)), abs=0.05)
+        assert goal.altitude_m == pytest.approx(10.5)  # 10 m above home, home 0.5 m up
+        # SET_POSITION_TARGET_GLOBAL_INT, altitude above sea level: newest goal wins.
+        target = autopilot.codec.build(
+            "SET_POSITION_TARGET_GLOBAL_INT", 0, 7, me, mav.MAV_FRAME_GLOBAL_INT, 0x0FF8,
+            lat, round(ORIGIN[1] * 1e7), 500.0, 0, 0, 0, 0, 0, 0, 0, 0,
+        )  # fmt: skip
+        autopilot.send(target)
+        assert await wait_for(lambda: daemon.avoidance.goal.east_m == pytest.approx(0.0), 5)
+        assert daemon.avoidance.goal.altitude_m == pytest.approx(12.0)
+    finally:
+        await stop(daemon, task)
+        await autopilot.stop()
+
+
+async def test_the_mission_is_downloaded_despite_losses_flown_in_order_and_read_again(
+    tmp_path: Path,
+) -> None:
+    # Item 0 is ArduPilot's home; waypoint 1 is where the vehicle hovers (reached at once);
+    # waypoint 2 is 111 m north.
+    mission = [_item(0, 0, 0, 0), _item(1, 0, 0, 1.5), _item(2, 0.001, 0, 1.5)]
+    autopilot = MockAutopilot(
+        system_id=7,
+        mode="GUIDED",
+        armed=True,
+        origin=ORIGIN,
+        mission=mission,
+        mission_drops={("MISSION_COUNT", -1), ("MISSION_ITEM_INT", 1)},
+        mission_repeats=True,
+    )
+    sections = {"avoidance": {"enabled": True, "follow_mission": True}}
+    daemon, task = await _pair(tmp_path, autopilot, sections)
+    try:
+        assert await wait_for(lambda: "avoidd: reached waypoint 1" in _texts(autopilot), 20)
+        assert await wait_for(lambda: daemon.avoidance.goal.label == "waypoint 2", 5)
+        assert daemon.avoidance.goal.north_m == pytest.approx(111.32, abs=0.05)
+        assert autopilot.counts["MISSION_ACK"] == 1
+        # Each lost answer was asked for again, nothing more.
+        lists = autopilot.counts["MISSION_REQUEST_LIST"]
+        item_1 = [m.seq for m in autopilot.of_type("MISSION_REQUEST_INT")].count(1)
+        assert (lists, item_1) == (2, 2)
+        # A ground station uploads a new mission: avoidd reads it and starts over.
+        autopilot.mission = [_item(0, 0, 0, 0), _item(1, 0, 0.002, 3.0)]
+        assert await wait_for(lambda: daemon.avoidance.goal.east_m > 100.0, 8)
+        assert daemon.avoidance.goal.label == "waypoint 1"
+        assert daemon.avoidance.goal_source == "mission"
     finally:
         await stop(daemon, task)
         await autopilot.stop()

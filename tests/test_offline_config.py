@@ -118,14 +118,16 @@ def test_check_config_tells_the_range_and_the_field_of_view(
     assert "OBSTACLE_DISTANCE range" in out
 
 
-def test_following_the_mission_is_refused_until_the_mission_is_downloaded(
+def test_avoidance_goals_from_config_mission_or_mavlink_are_valid_and_bad_ones_named(
     tmp_path: Path, capsys: pytest.CaptureFixture[str]
 ) -> None:
     config = _config(tmp_path, SOURCE, mavlink=True)
     base = config.read_text()
     config.write_text(base + "avoidance: {enabled: true, follow_mission: true}\n")
-    assert main(["check-config", str(config)]) == 2
-    assert "avoidance.follow_mission" in capsys.readouterr().err
+    assert main(["check-config", str(config)]) == 0
     # Without a goal avoidance waits for one over MAVLink: valid.
     config.write_text(base + "avoidance: {enabled: true}\n")
     assert main(["check-config", str(config)]) == 0
+    config.write_text(base + "avoidance: {enabled: true, follow_mission: maybe}\n")
+    assert main(["check-config", str(config)]) == 2
+    assert "avoidance.follow_mission" in capsys.readouterr().err

@@ -20,17 +20,19 @@ at its capture time. Planner state changes are logged and sent as STATUSTEXT.
 from __future__ import annotations
 
 import logging
-import math
 import time
 from collections.abc import Callable
 
 from avoidd.config import AvoidanceConfig
+from avoidd.daemon import goals
+from avoidd.daemon.mission_follow import MissionFollower
 from avoidd.daemon.outputs import Outputs, every
 from avoidd.daemon.params import BY_NAME, PARAMS, ParamTable
 from avoidd.mavlink import codec as mav
 from avoidd.mavlink.codec import Message
 from avoidd.mavlink.link import MavLink
-from avoidd.mavlink.modes import PX4
+from avoidd.mavlink.mission import MissionClient
+from avoidd.mavlink.modes import ARDUPILOT, PX4
 from avoidd.mavlink.vehicle import Vehicle
 from avoidd.planner.core import Decision, Goal, Planner, Pose
 from avoidd.planner.gating import Facts, Gate, gate
@@ -42,8 +44,9 @@ VELOCITY_YAW_RATE_MASK = 0x05C7
 and yaw (bits 0-2, 6-8 and 10 set)."""
 
 _SWITCH_OFF_HOLD_NS = 1_000_000_000
-_DO_REPOSITION = 192
-_MIN_GOAL_ALTITUDE_M = 0.5
+_MISSION_MESSAGES = frozenset(
+    {"MISSION_COUNT", "MISSION_ITEM_INT", "MISSION_ACK", "MISSION_CURRENT"}
+)
 
 _REASONS = {
     "link": "link down",
@@ -85,6 +88,15 @@ class AvoidanceLoop:
         self.planner = Planner(config, max_range_m)
         goal = config.goal
         self.goal = Goal(goal.north_m, goal.east_m, goal.altitude_m) if goal else None
+        self.goal_source = "config" if goal else "none"
+        """Where the current goal came from: ``config``, ``gcs`` or ``mission``."""
+        self.mission: MissionFollower | None = None
+        if config.follow_mission:
+            self.mission = MissionFollower(MissionClient(link.codec))
+            vehicle.on_autopilot = self._from_autopilot
+        vehicle.wants_origin = config.enabled
+        self._reboots_seen = vehicle.reboots
+        self._mission_done = False
         self.state = "starting" if config.enabled else _REASONS["enabled"]
         """What the loop did last cycle: a gate reason or the planner's state."""
         self.last_decision: Decision | None = None
@@ -138,6 +150,7 @@ class AvoidanceLoop:
             if now_ns - self._switched_off_ns < _SWITCH_OFF_HOLD_NS and self._in_setpoint_mode():
                 return self._setpoint(now_ns, self.planner.hold("avoidance off"))
             return None
+        self._follow_mission(now_ns)
         scan = self.outputs.current_scan(now_ns)
         if scan is not None:
             at_capture = self._pose(scan.t_capture_ns, now_ns)
@@ -159,7 +172,60 @@ class AvoidanceLoop:
             decision = self.planner.hold(why)
         self.last_decision = decision
         self._transition(decision.state)
+        if decision.state == "arrived" and self.goal_source == "mission" and not self._mission_done:
+            assert self.mission is not None
+            self.mission.advance()
+            self._next_waypoint(now_ns)
         return self._setpoint(now_ns, decision)
+
+    def _from_autopilot(self, message: Message, received_ns: int) -> None:
+        if self.mission is not None and message.get_type() in _MISSION_MESSAGES:
+            self.mission.client.handle(message, received_ns)
+
+    def _frame(self) -> goals.Frame:
+        position = self.vehicle.position
+        return goals.Frame(
+            self.vehicle.origin,
+            self.vehicle.home_up_m,
+            -position.down_m if position is not None else None,
+        )
+
+    def _follow_mission(self, now_ns: int) -> None:
+        """Keep the mission downloaded; a new one replaces the goal from its first waypoint."""
+        mission = self.mission
+        if mission is None or not self.vehicle.link_up or self.vehicle.system_id is None:
+            return
+        if self.vehicle.reboots != self._reboots_seen:
+            self._reboots_seen = self.vehicle.reboots
+            mission.client.reset()
+        for message in mission.client.tick(
+            now_ns, self.vehicle.system_id, self.vehicle.component_id
+        ):
+            self.link.send(message)
+        mode = self.vehicle.mode
+        if mission.new_mission(ardupilot=mode is not None and mode.autopilot == ARDUPILOT):
+            self.goal_source = "mission"
+            self._mission_done = False
+            self.goal = None
+            self._next_waypoint(now_ns)
+        elif self.goal_source == "mission" and self.goal is None:
+            self._next_waypoint(now_ns)  # waiting for the origin
+
+    def _next_waypoint(self, now_ns: int) -> None:
+        assert self.mission is not None
+        goal = self.mission.goal(self._frame())
+        if isinstance(goal, Goal):
+            if goal != self.goal:
+                self.set_goal(goal)
+        elif goal is None:
+            # Done (the last waypoint stays the goal: the vehicle holds there), or a mission
+            # without waypoints.
+            if self.goal is not None and not self._mission_done:
+                logger.info("mission: last waypoint reached")
+                self.announce(mav.MAV_SEVERITY_INFO, "avoidd: mission done", "mission")
+            self._mission_done = True
+        else:
+            self.goal = None  # until the origin is known
 
     def _in_setpoint_mode(self) -> bool:
         mode = self.vehicle.mode
@@ -206,63 +272,67 @@ class AvoidanceLoop:
         elif state == "stale":
             severity = mav.MAV_SEVERITY_CRITICAL
         elif state == "arrived" and self.goal is not None:
-            text = f"avoidd: reached {self.goal.label}"
+            # An event, not a state: never replaced by the next state while it waits.
+            self.announce(severity, f"avoidd: reached {self.goal.label}", None)
+            return
         self.announce(severity, text, "avoidance")
 
     def handle_command(self, message: Message) -> None:
-        """A goal or command addressed to avoidd's component (newest goal wins).
+        """A goal, command or parameter message addressed to avoidd's component.
 
-        ``SET_POSITION_TARGET_LOCAL_NED`` with a position in ``MAV_FRAME_LOCAL_NED`` becomes
-        the goal (north, east, altitude = -z). Commands are answered with COMMAND_ACK:
-        ``MAV_CMD_DO_REPOSITION`` and anything else as unsupported (global goals need the
-        autopilot's origin, not taken yet), with a STATUSTEXT saying what to send instead.
+        Goals (newest wins): ``SET_POSITION_TARGET_LOCAL_NED`` (``MAV_FRAME_LOCAL_NED``),
+        ``SET_POSITION_TARGET_GLOBAL_INT`` and ``COMMAND_INT`` ``MAV_CMD_DO_REPOSITION`` (global
+        positions through the autopilot's origin). Commands get a COMMAND_ACK with the result;
+        every refusal is logged and sent as STATUSTEXT with its reason. A goal from a ground
+        station replaces the mission's until the mission changes.
         """
         kind = message.get_type()
         if kind.startswith("PARAM_"):
             self._param(message)
             return
+        goal: Goal | goals.Refusal
         if kind == "SET_POSITION_TARGET_LOCAL_NED":
-            position_ignored = message.type_mask & 0x7
-            finite = all(math.isfinite(v) for v in (message.x, message.y, message.z))
-            if (
-                message.coordinate_frame != mav.MAV_FRAME_LOCAL_NED
-                or position_ignored
-                or not finite
-            ):
-                logger.warning(
-                    "goal refused: SET_POSITION_TARGET_LOCAL_NED needs frame LOCAL_NED (1), "
-                    "a finite position and type_mask bits 0-2 clear"
-                )
-                self.announce(mav.MAV_SEVERITY_WARNING, "avoidd: goal refused: frame/mask", None)
-                return
-            altitude_m = -float(message.z)
-            if altitude_m < _MIN_GOAL_ALTITUDE_M or max(abs(message.x), abs(message.y)) > 10_000:
-                logger.warning("goal refused: altitude %.1f m or more than 10 km away", altitude_m)
-                self.announce(mav.MAV_SEVERITY_WARNING, "avoidd: goal refused: too low/far", None)
-                return
-            self.set_goal(Goal(float(message.x), float(message.y), altitude_m, "GCS goal"))
-            return
-        if kind in ("COMMAND_LONG", "COMMAND_INT"):
+            goal = goals.local_target(message)
+        elif kind == "SET_POSITION_TARGET_GLOBAL_INT":
+            goal = goals.global_target(message, self._frame())
+        elif kind == "COMMAND_INT" and int(message.command) == mav.MAV_CMD_DO_REPOSITION:
+            goal = goals.reposition(message, self._frame())
+        elif kind in ("COMMAND_LONG", "COMMAND_INT"):
             command = int(message.command)
-            logger.warning("command %d addressed to avoidd: not supported", command)
-            ack = self.link.codec.build(
+            why = "use COMMAND_INT"
+            if command != mav.MAV_CMD_DO_REPOSITION:
+                why = f"command {command} not supported"
+            self._refuse(kind, goals.Refusal(mav.MAV_RESULT_UNSUPPORTED, why), message)
+            return
+        else:
+            logger.warning("%s addressed to avoidd: not supported", kind)
+            return
+        if isinstance(goal, goals.Refusal):
+            self._refuse(kind, goal, message)
+            return
+        if kind == "COMMAND_INT":
+            self._ack(message, mav.MAV_RESULT_ACCEPTED)
+        self.goal_source = "gcs"
+        self.set_goal(goal)
+
+    def _refuse(self, kind: str, refusal: goals.Refusal, message: Message) -> None:
+        logger.warning("%s refused: %s", kind, refusal.reason)
+        self.announce(mav.MAV_SEVERITY_WARNING, f"avoidd: goal refused: {refusal.reason}", None)
+        if kind.startswith("COMMAND_"):
+            self._ack(message, refusal.result)
+
+    def _ack(self, message: Message, result: int) -> None:
+        self.link.send(
+            self.link.codec.build(
                 "COMMAND_ACK",
-                command,
-                mav.MAV_RESULT_UNSUPPORTED,
+                int(message.command),
+                result,
                 0,
                 0,
                 message.get_srcSystem(),
                 message.get_srcComponent(),
             )
-            self.link.send(ack)
-            if command == _DO_REPOSITION:
-                self.announce(
-                    mav.MAV_SEVERITY_WARNING,
-                    "avoidd: use SET_POSITION_TARGET_LOCAL_NED for goals",
-                    "command",
-                )
-            return
-        logger.warning("%s addressed to avoidd: not supported", kind)
+        )
 
     def _param(self, message: Message) -> None:
         """Answer the parameter protocol (see :mod:`avoidd.daemon.params`)."""
@@ -311,6 +381,7 @@ class AvoidanceLoop:
 
     def _apply(self, config: AvoidanceConfig) -> None:
         self.config = config
+        self.vehicle.wants_origin = config.enabled
         self.planner.reconfigure(config)
 
     def set_goal(self, goal: Goal) -> None:

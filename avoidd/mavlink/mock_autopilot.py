@@ -28,6 +28,7 @@ from avoidd.aio import cancel_task
 from avoidd.config.connection import parse_connection
 from avoidd.errors import LinkError
 from avoidd.mavlink import codec as mav
+from avoidd.mavlink.mission import MissionItem
 from avoidd.mavlink.signing import wall_timestamp
 from avoidd.mavlink.transport import ReceiveCallback, Transport, create_transport
 
@@ -145,6 +146,14 @@ class MockAutopilot:
         acknowledge: Whether it answers commands at all.
         fixed_streams: Streams at fixed rates (msg name -> Hz), sent whether asked or not.
         rangefinder_m: Distance its downward rangefinder reports.
+        position_ned: The local position it reports (north, east, down; metres).
+        origin: Its EKF origin (latitude, longitude in degrees, altitude AMSL in metres),
+            sent as GPS_GLOBAL_ORIGIN when asked with MAV_CMD_REQUEST_MESSAGE; None: no fix.
+        home_up_m: Home's height above the origin (HOME_POSITION z is its negative).
+        mission: Its mission (served with the mission protocol); None: no mission support.
+        mission_drops: Answers to leave out once each, as (message name, seq) pairs, for
+            loss tests (seq -1 for MISSION_COUNT).
+        mission_repeats: Whether every mission answer is sent twice.
     """
 
     flavour: str = "ardupilot"
@@ -159,6 +168,12 @@ class MockAutopilot:
     acknowledge: bool = True
     fixed_streams: dict[str, float] = field(default_factory=dict)
     rangefinder_m: float = 1.5
+    position_ned: tuple[float, float, float] = (0.0, 0.0, -1.5)
+    origin: tuple[float, float, float] | None = None
+    home_up_m: float = 0.0
+    mission: list[MissionItem] | None = None
+    mission_drops: set[tuple[str, int]] = field(default_factory=set)
+    mission_repeats: bool = False
     recorded: list[Recorded] = field(default_factory=list)
     streams: dict[int, float] = field(default_factory=dict)
     counts: Counter[str] = field(default_factory=Counter)
@@ -208,7 +223,8 @@ class MockAutopilot:
             roll, pitch, yaw = self.attitude(t_s)
             return self.codec.build("ATTITUDE", t_ms, roll, pitch, yaw, 0.0, 0.0, 0.0)
         if name == "LOCAL_POSITION_NED":
-            return self.codec.build("LOCAL_POSITION_NED", t_ms, 0.0, 0.0, -1.5, 0.0, 0.0, 0.0)
+            north, east, down = self.position_ned
+            return self.codec.build("LOCAL_POSITION_NED", t_ms, north, east, down, 0.0, 0.0, 0.0)
         if name == "DISTANCE_SENSOR":
             return self.codec.distance_sensor(
                 t_ms,
@@ -241,6 +257,45 @@ class MockAutopilot:
             self.counts[message.get_type()] += 1
             if message.get_type() == "COMMAND_LONG":
                 self._on_command(message)
+            elif message.get_type() in ("MISSION_REQUEST_LIST", "MISSION_REQUEST_INT"):
+                self._on_mission_request(message)
+
+    def _on_mission_request(self, message: mav.Message) -> None:
+        if self.mission is None or message.target_system != self.system_id:
+            return
+        kind = message.get_type()
+        seq = -1 if kind == "MISSION_REQUEST_LIST" else int(message.seq)
+        answer = "MISSION_COUNT" if seq < 0 else "MISSION_ITEM_INT"
+        if (answer, seq) in self.mission_drops:
+            self.mission_drops.discard((answer, seq))
+            return
+        to = (message.get_srcSystem(), message.get_srcComponent())
+        kind_mission = mav.MAV_MISSION_TYPE_MISSION
+        if seq < 0:
+            reply = self.codec.build("MISSION_COUNT", *to, len(self.mission), kind_mission)
+        elif seq < len(self.mission):
+            item = self.mission[seq]
+            reply = self.codec.build(
+                "MISSION_ITEM_INT",
+                *to,
+                seq,
+                item.frame,
+                item.command,
+                0,
+                1,
+                0.0,
+                0.0,
+                0.0,
+                0.0,
+                item.x,
+                item.y,
+                item.z,
+                kind_mission,
+            )
+        else:
+            return
+        for _ in range(2 if self.mission_repeats else 1):
+            self.send(reply)
 
     def _on_command(self, message: mav.Message) -> None:
         if message.target_system not in (0, self.system_id) or message.target_component not in (
@@ -249,6 +304,20 @@ class MockAutopilot:
         ):
             return
         result = mav.MAV_RESULT_UNSUPPORTED
+        later: mav.Message | None = None
+        if message.command == mav.MAV_CMD_REQUEST_MESSAGE and self.origin is not None:
+            lat_deg, lon_deg, alt_m = self.origin
+            lat, lon, alt_mm = round(lat_deg * 1e7), round(lon_deg * 1e7), round(alt_m * 1000)
+            if int(message.param1) == 49:
+                result = mav.MAV_RESULT_ACCEPTED
+                later = self.codec.build("GPS_GLOBAL_ORIGIN", lat, lon, alt_mm, 0)
+            elif int(message.param1) == 242:
+                result = mav.MAV_RESULT_ACCEPTED
+                home_alt_mm = alt_mm + round(self.home_up_m * 1000)
+                q = [1.0, 0.0, 0.0, 0.0]
+                later = self.codec.build(
+                    "HOME_POSITION", lat, lon, home_alt_mm, 0, 0, -self.home_up_m, q, 0, 0, 0, 0
+                )
         if message.command == mav.MAV_CMD_SET_MESSAGE_INTERVAL:
             msg_id = int(message.param1)
             interval_us = message.param2
@@ -272,6 +341,8 @@ class MockAutopilot:
                     message.get_srcComponent(),
                 )
             )
+        if later is not None:
+            self.send(later)
 
     def reboot(self) -> None:
         """Reboot at once, as ArduPilot SITL does in under 3 s.
@@ -305,6 +376,9 @@ class MockAutopilot:
             now_s = time.monotonic()
             if now_s >= next_heartbeat_s:
                 self.send(self.heartbeat())
+                if self.mission is not None:
+                    total = len(self.mission)
+                    self.send(self.codec.build("MISSION_CURRENT", 0, total, 0, 0))
                 next_heartbeat_s = now_s + 1.0
             for msg_id, interval_s in list(self.streams.items()):
                 due_s = self._due_s.setdefault(msg_id, now_s)

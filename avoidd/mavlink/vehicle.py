@@ -20,6 +20,7 @@ from avoidd.config import MavlinkConfig
 from avoidd.mavlink import codec as mav
 from avoidd.mavlink.attitude import Attitude, AttitudeHistory
 from avoidd.mavlink.clock import ClockSync
+from avoidd.mavlink.geo import GlobalPoint, valid_lat_lon
 from avoidd.mavlink.link import MavLink
 from avoidd.mavlink.modes import FlightMode, decode_mode
 
@@ -31,6 +32,9 @@ _SILENT_MIN_NS = 1_000_000_000
 """An accepted stream silent for this long (or three intervals) is asked for again: an
 autopilot that rebooted within the link timeout has forgotten every request."""
 _NOT_AUTOPILOTS = {mav.MAV_TYPE_GCS, mav.MAV_TYPE_ONBOARD_CONTROLLER}
+_ORIGIN_RETRY_NS = 2_000_000_000
+_GPS_GLOBAL_ORIGIN = 49
+_HOME_POSITION = 242
 
 
 class Announce(Protocol):
@@ -127,6 +131,14 @@ class Vehicle:
         self.attitude = AttitudeHistory()
         self.position: LocalPosition | None = None
         self.rangefinder: Rangefinder | None = None
+        self.origin: GlobalPoint | None = None
+        """The local frame's origin (GPS_GLOBAL_ORIGIN), for global goals."""
+        self.home_up_m: float | None = None
+        """Home's height above the origin (HOME_POSITION z), for relative altitudes."""
+        self.wants_origin = False
+        """Ask for GPS_GLOBAL_ORIGIN and HOME_POSITION until both are known (global goals
+        and missions need them)."""
+        self._origin_asked_ns = -(10**18)
         self.ignored: Counter[int] = Counter()
         self.reboots = 0
         """Autopilot reboots seen (boot clock going back, or every stream silent)."""
@@ -147,9 +159,11 @@ class Vehicle:
         self._pending: StreamRequest | None = None
         self._pending_sent_s = 0.0
         self.on_command: Callable[[mav.Message], None] | None = None
+        """Receives the messages in ``ADDRESSED_TO_US`` sent to avoidd's own component."""
+        self.on_autopilot: Callable[[mav.Message, int], None] | None = None
+        """Also receives every message from the autopilot (mission protocol answers)."""
         self.ground_stations: set[int] = set()
         """Systems whose HEARTBEAT says MAV_TYPE_GCS (trusted with goals and parameters)."""
-        """Receives the messages in ``ADDRESSED_TO_US`` sent to avoidd's own component."""
         link.codec.system_id = self.system_id or DEFAULT_SYSTEM_ID
         link.subscribe(self.handle)
 
@@ -187,6 +201,8 @@ class Vehicle:
         handler = getattr(self, f"_on_{kind.lower()}", None)
         if handler is not None:
             handler(message, received_ns)
+        if self.on_autopilot is not None:
+            self.on_autopilot(message, received_ns)
 
     def _addressed_to_us(self, message: mav.Message) -> bool:
         codec = self._link.codec
@@ -274,6 +290,25 @@ class Vehicle:
     def _on_system_time(self, message: mav.Message, received_ns: int) -> None:
         self._observe_boot_ms(message.time_boot_ms, received_ns)
 
+    def _on_gps_global_origin(self, message: mav.Message, received_ns: int) -> None:
+        lat_deg, lon_deg = message.latitude / 1e7, message.longitude / 1e7
+        if not valid_lat_lon(lat_deg, lon_deg):
+            return
+        origin = GlobalPoint(lat_deg, lon_deg, message.altitude / 1000.0)
+        if origin != self.origin:
+            logger.info(
+                "vehicle %s: origin %.7f, %.7f, %.1f m AMSL",
+                self.system_id,
+                origin.lat_deg,
+                origin.lon_deg,
+                origin.alt_m,
+            )
+        self.origin = origin
+
+    def _on_home_position(self, message: mav.Message, received_ns: int) -> None:
+        if math.isfinite(message.z):
+            self.home_up_m = -float(message.z)
+
     def _on_command_ack(self, message: mav.Message, received_ns: int) -> None:
         request = self._pending
         if request is None or message.command != mav.MAV_CMD_SET_MESSAGE_INTERVAL:
@@ -337,6 +372,7 @@ class Vehicle:
         if self.link_up:
             self._check_silent_streams(now_ns)
             self._request_streams(now_ns / 1e9)
+            self._request_origin(now_ns)
 
     def _observe_boot_ms(self, time_boot_ms: int, received_ns: int) -> None:
         if self.clock.observe_boot_ms(time_boot_ms, received_ns):
@@ -348,6 +384,8 @@ class Vehicle:
         self.attitude.clear()
         self.position = None
         self.rangefinder = None
+        self.origin = None
+        self.home_up_m = None
         for request in self.requests:
             request.acked = request.refused = False
             request.attempts = 0
@@ -403,6 +441,39 @@ class Vehicle:
                 self.system_id, self.component_id, request.msg_id, request.interval_us
             )
         )
+
+    def _request_origin(self, now_ns: int) -> None:
+        """Ask for the origin and home (MAV_CMD_REQUEST_MESSAGE) every 2 s until both are known."""
+        wanted = [
+            msg_id
+            for msg_id, known in (
+                (_GPS_GLOBAL_ORIGIN, self.origin is not None),
+                (_HOME_POSITION, self.home_up_m is not None),
+            )
+            if not known
+        ]
+        if not self.wants_origin or not wanted or self.system_id is None:
+            return
+        if now_ns - self._origin_asked_ns < _ORIGIN_RETRY_NS:
+            return
+        self._origin_asked_ns = now_ns
+        for msg_id in wanted:
+            self._link.send(
+                self._link.codec.build(
+                    "COMMAND_LONG",
+                    self.system_id,
+                    self.component_id,
+                    mav.MAV_CMD_REQUEST_MESSAGE,
+                    0,
+                    float(msg_id),
+                    0.0,
+                    0.0,
+                    0.0,
+                    0.0,
+                    0.0,
+                    0.0,
+                )
+            )
 
     async def run(self, period_s: float = 0.1) -> None:
         """Call :meth:`tick` forever."""
