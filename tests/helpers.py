@@ -197,3 +197,41 @@ def noisy_grey_pair(scene: Any, rig: Any, seed: int, sigma: float) -> tuple[Any,
         for view in (rendered.left, rendered.right)
     ]
     return views[0], views[1], rendered.truth
+
+
+class UdpHub(asyncio.DatagramProtocol):
+    """A tiny MAVLink router on loopback: every datagram goes to every other peer heard so far.
+
+    Like mavlink-router's UDP server endpoints, it lets a ground-station tool, avoidd and an
+    autopilot all share one port (``udpout:127.0.0.1:<port>`` for each).
+    """
+
+    def __init__(self) -> None:
+        self.peers: list[Any] = []
+        self.transport: Any = None
+
+    def connection_made(self, transport: asyncio.BaseTransport) -> None:
+        self.transport = transport
+
+    def datagram_received(self, data: bytes, addr: Any) -> None:
+        if addr not in self.peers:
+            self.peers.append(addr)
+        assert self.transport is not None
+        for peer in self.peers:
+            if peer != addr:
+                self.transport.sendto(data, peer)
+
+    @property
+    def port(self) -> int:
+        assert self.transport is not None
+        return int(self.transport.get_extra_info("sockname")[1])
+
+    def close(self) -> None:
+        if self.transport is not None:
+            self.transport.close()
+
+
+async def start_hub() -> UdpHub:
+    loop = asyncio.get_running_loop()
+    _, hub = await loop.create_datagram_endpoint(UdpHub, local_addr=("127.0.0.1", 0))
+    return hub

@@ -6,16 +6,21 @@ from __future__ import annotations
 import asyncio
 import json
 import math
+import sys
+import time
 from pathlib import Path
 from typing import Any
 
 import pytest
 
 from avoidd.daemon.avoidance import VELOCITY_YAW_RATE_MASK
+from avoidd.daemon.stats import log_line
 from avoidd.mavlink import codec as mav
+from avoidd.mavlink.goto import LocalGoal, send_goal
 from avoidd.mavlink.mission import MissionItem
 from avoidd.mavlink.mock_autopilot import MockAutopilot
-from tests.helpers import free_udp_port, synthetic_config, wait_for
+from avoidd.planner.core import Goal
+from tests.helpers import free_udp_port, start_hub, synthetic_config, wait_for
 from tests.helpers import start_daemon as start
 from tests.helpers import stop_daemon as stop
 
@@ -49,9 +54,16 @@ async def test_ardupilot_guided_gets_velocity_setpoints_and_loiter_gets_none(
         assert message.type_mask == VELOCITY_YAW_RATE_MASK
         assert (message.target_system, message.target_component) == (7, 1)
         assert daemon.avoidance.state in {"moving", "dead end", "no path", "arrived"}
+        # The periodic log line says what the planner does and toward which goal.
+        line = log_line(daemon.snapshot(time.monotonic_ns()))
+        state = daemon.avoidance.last_decision.state
+        flying = "; avoidance moving to goal " if state == "moving" else f"({state}): goal "
+        assert flying in line, line
         # The pilot takes over: once avoidd has heard the new mode, nothing more is sent.
         autopilot.mode = "LOITER"
         assert await wait_for(lambda: daemon.avoidance.state == "mode does not take setpoints", 5)
+        line = log_line(daemon.snapshot(time.monotonic_ns()))
+        assert line.endswith("; avoidance silent: mode does not take setpoints"), line
         count = len(_setpoints(autopilot))
         await asyncio.sleep(0.6)
         assert len(_setpoints(autopilot)) <= count + 1  # at most one already in flight
@@ -378,3 +390,38 @@ async def test_the_mission_is_downloaded_despite_losses_flown_in_order_and_read_
     finally:
         await stop(daemon, task)
         await autopilot.stop()
+
+
+async def test_goto_reaches_avoidd_through_a_router_like_a_ground_station(tmp_path: Path) -> None:
+    hub = await start_hub()
+    autopilot = MockAutopilot(system_id=7, mode="GUIDED", armed=True, origin=ORIGIN)
+    await autopilot.start(f"udpout:127.0.0.1:{hub.port}")
+    sections = {"avoidance": {"enabled": True}}
+    config = synthetic_config(tmp_path, f"udpout:127.0.0.1:{hub.port}", sections=sections)
+    daemon, task = await start(config)
+    try:
+        assert await wait_for(lambda: daemon.vehicle.origin is not None, 10)
+        # The library call: a local goal, the vehicle's system learned from avoidd's heartbeat.
+        answer = await send_goal(f"udpout:127.0.0.1:{hub.port}", LocalGoal(12.0, -4.0, 3.0))
+        assert (answer.accepted, answer.system_id) == (True, 7)
+        assert answer.text == "avoidd: goal N12.0 E-4.0 A3.0"
+        assert daemon.avoidance.goal == Goal(12.0, -4.0, 3.0, "GCS goal")
+        # The command line, as a user types it: a global goal, then one avoidd refuses.
+        lat, lon = ORIGIN[0] + 0.0005, ORIGIN[1]
+        command = [sys.executable, "-m", "avoidd", "--log-level", "WARNING", "goto"]
+        where = f"udpout:127.0.0.1:{hub.port}"
+        for args, code, text in [
+            (["--global", str(lat), str(lon), "6"], 0, "MAV_RESULT_ACCEPTED"),
+            (["--global", str(lat), str(lon), "0.2"], 1, "MAV_RESULT_DENIED"),
+        ]:
+            process = await asyncio.create_subprocess_exec(
+                *command, where, *args, "--timeout", "20", stdout=asyncio.subprocess.PIPE
+            )
+            out, _ = await process.communicate()
+            assert (process.returncode, out.decode().strip()) == (code, text)
+        assert daemon.avoidance.goal.north_m == pytest.approx(55.66, abs=0.05)
+        assert daemon.avoidance.goal.altitude_m == pytest.approx(6.0)
+    finally:
+        await stop(daemon, task)
+        await autopilot.stop()
+        hub.close()

@@ -33,6 +33,7 @@ COMMANDS: dict[str, tuple[str, str]] = {
     "bench-link": ("bench", "measure CPU for decoding a stream of incoming MAVLink"),
     "bench-sim": ("bench", "simulator render rate, planner cost, lockstep scenario time"),
     "sim": ("sim", "closed-loop scenarios in the simulator: run one, or a batch"),
+    "goto": ("goto", "send the running avoidd a goal, as a ground station does"),
     "calibrate": ("calibrate", "stereo calibration from left/ and right/ images of a board"),
     "render-board": ("calibrate", "render board pairs through a virtual rig (to try calibrate)"),
     "import-calibration": (

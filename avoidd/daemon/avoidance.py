@@ -227,6 +227,29 @@ class AvoidanceLoop:
         else:
             self.goal = None  # until the origin is known
 
+    def summary(self) -> str:
+        """The loop's state in a phrase for the periodic log line.
+
+        ``avoidance moving to GCS goal 12.3 m, 45 deg at <=2.1 m/s`` while it flies; else why
+        it holds or is silent (``avoidance holds: stale``, ``avoidance silent: disarmed``).
+        """
+        if not self.config.enabled:
+            return "avoidance off"
+        decision = self.last_decision
+        goal = self.goal
+        if self.state in _REASONS.values() or self.state == "starting" or decision is None:
+            return f"avoidance silent: {self.state}"
+        where = goal.label if goal is not None else "no goal"
+        if decision.goal_distance_m is not None:
+            where += f" {decision.goal_distance_m:.1f} m"
+        if decision.state == "moving" and decision.direction_deg is not None:
+            free = f" ({decision.free_m:.1f} m free)" if decision.free_m is not None else ""
+            return (
+                f"avoidance moving to {where}, {decision.direction_deg:.0f} deg at "
+                f"<={decision.speed_limit_m_s:.1f} m/s{free}"
+            )
+        return f"avoidance holds ({decision.state}): {where}"
+
     def _in_setpoint_mode(self) -> bool:
         mode = self.vehicle.mode
         return bool(self.vehicle.link_up and mode is not None and mode.armed and mode.guided)

@@ -136,7 +136,10 @@ class Daemon:
 
     def snapshot(self, now_ns: int, previous: DaemonStats | None = None) -> DaemonStats:
         """The daemon's counters now (see :func:`avoidd.daemon.stats.snapshot`)."""
-        return snapshot(self.heads, self.link, self.vehicle, now_ns, self._max_age_ns, previous)
+        planner = self.avoidance.summary() if self.avoidance is not None else None
+        return snapshot(
+            self.heads, self.link, self.vehicle, now_ns, self._max_age_ns, previous, planner
+        )
 
     async def run(self) -> int:
         """Run until SIGINT/SIGTERM or :meth:`stop`.

@@ -96,6 +96,7 @@ class DaemonStats:
         link: The link and the autopilot.
         fresh_data: Whether any head has fresh data (the merged scan exists).
         nearest: The nearest obstacle of the merged scan, None if none or no fresh data.
+        planner: The avoidance loop's state in a phrase (None when there is none).
     """
 
     t_ns: int
@@ -104,6 +105,7 @@ class DaemonStats:
     link: LinkSnapshot
     fresh_data: bool
     nearest: Nearest | None
+    planner: str | None = None
 
 
 def snapshot(
@@ -113,6 +115,7 @@ def snapshot(
     now_ns: int,
     max_age_ns: int,
     previous: DaemonStats | None = None,
+    planner: str | None = None,
 ) -> DaemonStats:
     """Take a snapshot of the daemon's counters.
 
@@ -124,6 +127,7 @@ def snapshot(
         max_age_ns: Age beyond which a head's data is stale (``pipeline.max_age_ms``).
         previous: The snapshot the interval counts and rates are relative to; without one
             they count from start and rates are 0.0.
+        planner: The avoidance loop's state (see ``AvoidanceLoop.summary``).
 
     Returns:
         The snapshot.
@@ -170,6 +174,7 @@ def snapshot(
         ),
         fresh_data=scan is not None,
         nearest=scan.nearest() if scan is not None else None,
+        planner=planner,
     )
 
 
@@ -209,7 +214,8 @@ def log_line(stats: DaemonStats) -> str:
     else:
         where = "nearest none" if stats.fresh_data else "no fresh data"
     sent = stats.link.sent.get("OBSTACLE_DISTANCE", 0)
-    return f"{'; '.join(parts)}; {where}; sent {sent}; {link_summary(stats.link)}"
+    line = f"{'; '.join(parts)}; {where}; sent {sent}; {link_summary(stats.link)}"
+    return f"{line}; {stats.planner}" if stats.planner else line
 
 
 async def log_every(interval_s: float, take: Callable[[DaemonStats | None], DaemonStats]) -> None:

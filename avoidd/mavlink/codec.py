@@ -73,6 +73,12 @@ def message_id(name: str) -> int:
     return int(msg_id)
 
 
+def result_name(result: int) -> str:
+    """A MAV_RESULT value by name (``MAV_RESULT_ACCEPTED``), or the number if unknown."""
+    entry = dialect.enums["MAV_RESULT"].get(result)
+    return str(entry.name) if entry is not None else str(result)
+
+
 def message_name(msg_id: int) -> str:
     """The name of a message id, or ``"MSG n"`` for one the dialect lacks."""
     cls = dialect.mavlink_map.get(msg_id)
