@@ -4,6 +4,7 @@ when avoidd loses its camera, and avoidd after an autopilot reboot."""
 from __future__ import annotations
 
 import asyncio
+import math
 import time
 from pathlib import Path
 from typing import Any
@@ -14,7 +15,10 @@ from avoidd.daemon import Daemon
 from avoidd.daemon.outputs import Outputs
 from avoidd.errors import SourceError
 from avoidd.loading import load_all
+from avoidd.mavlink import codec as mav
+from avoidd.mavlink.geo import GlobalPoint
 from avoidd.mavlink.layout import ARDUPILOT_LAYOUT
+from avoidd.mavlink.mission import MissionItem
 from avoidd.sim.ardupilot import ArduPilotSitl
 from avoidd.sources import open_source
 from tests.helpers import free_udp_port, synthetic_config, wait_for
@@ -41,7 +45,10 @@ SCENE = {
 
 
 async def _sitl_and_daemon(
-    sitl_dir: Path, tmp_path: Path, **daemon_args: Any
+    sitl_dir: Path,
+    tmp_path: Path,
+    sections: dict[str, Any] | None = None,
+    **daemon_args: Any,
 ) -> tuple[ArduPilotSitl, Daemon, asyncio.Task[int]]:
     port = free_udp_port()
     sitl = ArduPilotSitl(sitl_dir, port)
@@ -52,6 +59,7 @@ async def _sitl_and_daemon(
         source=SCENE,
         mavlink={"system_id": "auto"},
         pipeline={"max_age_ms": 300, "log_interval_s": 5.0},
+        sections=sections,
     )
     config, calibrations = load_all(config_path)
     daemon = Daemon(config, calibrations, **daemon_args)
@@ -242,3 +250,88 @@ async def test_streams_come_back_within_two_seconds_of_a_reboot(
     print(f"streams back {took_s:.2f} s after the autopilot's first heartbeat; reboots {rebooted}")
     assert streams_back and took_s <= 2.0
     assert rebooted >= 1 or any("link up" in t for t in link_downs)
+
+
+def _great_circle_ne(origin: GlobalPoint, lat_deg: float, lon_deg: float) -> tuple[float, float]:
+    """North and east by haversine distance and bearing (independent of avoidd's projection)."""
+    phi1, phi2 = math.radians(origin.lat_deg), math.radians(lat_deg)
+    d_lambda = math.radians(lon_deg - origin.lon_deg)
+    h = math.sin((phi2 - phi1) / 2) ** 2
+    h += math.cos(phi1) * math.cos(phi2) * math.sin(d_lambda / 2) ** 2
+    distance_m = 2 * 6378137.0 * math.asin(math.sqrt(h))
+    bearing = math.atan2(
+        math.sin(d_lambda) * math.cos(phi2),
+        math.cos(phi1) * math.sin(phi2) - math.sin(phi1) * math.cos(phi2) * math.cos(d_lambda),
+    )
+    return distance_m * math.cos(bearing), distance_m * math.sin(bearing)
+
+
+async def test_mission_and_reposition_from_a_real_ardupilot(sitl_dir: Path, tmp_path: Path) -> None:
+    """avoidd reads the mission a ground station uploaded to ArduPilot (item 0, home, skipped)
+    and takes a DO_REPOSITION the ground station addresses to it through ArduPilot's routing."""
+    sections = {"avoidance": {"enabled": True, "follow_mission": True}}
+    sitl, daemon, task = await _sitl_and_daemon(sitl_dir, tmp_path, sections)
+    try:
+        gcs = sitl.gcs
+        assert gcs is not None
+        # The EKF origin is set once the simulated GPS has a fix; avoidd asks until it has it.
+        assert await wait_for(lambda: daemon.vehicle.origin is not None, 90.0)
+        origin = daemon.vehicle.origin
+        assert origin is not None
+        home_lat, home_lon = -35.363261, 149.165230  # the SITL's --home
+        assert abs(origin.lat_deg - home_lat) < 1e-4 and abs(origin.lon_deg - home_lon) < 1e-4
+        frame = mav.MAV_FRAME_GLOBAL_RELATIVE_ALT_INT
+
+        def at(d_lat: float, d_lon: float, seq: int, up_m: float, command: int = 16) -> MissionItem:
+            lat, lon = round((home_lat + d_lat) * 1e7), round((home_lon + d_lon) * 1e7)
+            return MissionItem(seq, frame, command, lat, lon, up_m)
+
+        mission = [
+            at(0, 0, 0, 0),  # home, as ground stations send it
+            at(0, 0, 1, 10, command=22),  # NAV_TAKEOFF: not a waypoint
+            at(0.0004, 0.0003, 2, 12),
+            at(0.0008, -0.0002, 3, 15),
+        ]
+        assert await gcs.upload_mission(mission) == 0
+        # Read on avoidd's next look (MISSION_CURRENT's total, or the 15 s refresh).
+        assert await wait_for(
+            lambda: (
+                daemon.avoidance.goal is not None and daemon.avoidance.goal.label == "waypoint 2"
+            ),
+            25.0,
+        )
+        goal = daemon.avoidance.goal
+        north, east = _great_circle_ne(origin, home_lat + 0.0004, home_lon + 0.0003)
+        assert math.hypot(goal.north_m - north, goal.east_m - east) < 0.1, (goal, north, east)
+        home_up = daemon.vehicle.home_up_m
+        assert home_up is not None and abs(home_up) < 1.0
+        assert goal.altitude_m == pytest.approx(12.0 + home_up)
+        # A ground station on ArduPilot's own port addresses avoidd (component 196): ArduPilot
+        # routes the command to avoidd's link and avoidd's answer back.
+        system = daemon.vehicle.system_id
+        lat, lon = round((home_lat - 0.0005) * 1e7), round(home_lon * 1e7)
+        ack = asyncio.ensure_future(
+            gcs.next_message(
+                lambda m: (
+                    m.get_type() == "COMMAND_ACK"
+                    and m.get_srcComponent() == mav.MAV_COMP_ID_OBSTACLE_AVOIDANCE
+                    and m.command == mav.MAV_CMD_DO_REPOSITION
+                ),
+                10.0,
+            )
+        )
+        await asyncio.sleep(0)
+        reposition = gcs.codec.build(
+            "COMMAND_INT", system, mav.MAV_COMP_ID_OBSTACLE_AVOIDANCE, frame,
+            mav.MAV_CMD_DO_REPOSITION, 0, 0, -1, 0, 0, math.nan, lat, lon, 8.0,
+        )  # fmt: skip
+        gcs.send(reposition)
+        answer = await ack
+        assert answer is not None and answer.result == mav.MAV_RESULT_ACCEPTED
+        goal = daemon.avoidance.goal
+        assert goal.label == "GCS goal" and daemon.avoidance.goal_source == "gcs"
+        assert goal.north_m == pytest.approx(
+            _great_circle_ne(origin, lat / 1e7, lon / 1e7)[0], abs=0.1
+        )
+    finally:
+        await _stop(sitl, daemon, task)

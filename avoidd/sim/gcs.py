@@ -10,7 +10,7 @@ from __future__ import annotations
 import asyncio
 import logging
 import time
-from collections.abc import Callable
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
 
 from pymavlink import mavutil
@@ -19,6 +19,7 @@ from avoidd.aio import cancel_task
 from avoidd.config.connection import parse_connection
 from avoidd.errors import LinkError
 from avoidd.mavlink import codec as mav
+from avoidd.mavlink.mission import MissionItem
 from avoidd.mavlink.transport import Transport, create_transport
 
 logger = logging.getLogger(__name__)
@@ -216,6 +217,43 @@ class GroundStation:
                 return True
             await asyncio.sleep(1.0)
         return False
+
+    async def upload_mission(self, items: Sequence[MissionItem], timeout_s: float = 15.0) -> int:
+        """Upload a mission with the mission protocol, answering the autopilot's requests.
+
+        Returns:
+            The MAV_MISSION_RESULT of the autopilot's MISSION_ACK (0: accepted).
+
+        Raises:
+            LinkError: No MISSION_ACK within the timeout.
+        """
+        kinds = {"MISSION_REQUEST_INT", "MISSION_REQUEST", "MISSION_ACK"}
+
+        def answer(message: mav.Message) -> bool:
+            return bool(
+                message.get_type() in kinds
+                and self.from_autopilot(message)
+                and message.target_system == GCS_SYSTEM_ID
+            )
+
+        to = (self.target_system, self.target_component)
+        outgoing = self.codec.build("MISSION_COUNT", *to, len(items), 0)
+        deadline = time.monotonic() + timeout_s
+        while time.monotonic() < deadline:
+            reply = asyncio.ensure_future(self.next_message(answer, 1.0))
+            await asyncio.sleep(0)
+            self.send(outgoing)  # again after a second without an answer
+            message = await reply
+            if message is None:
+                continue
+            if message.get_type() == "MISSION_ACK":
+                return int(message.type)
+            item = items[int(message.seq)]
+            outgoing = self.codec.build(
+                "MISSION_ITEM_INT", *to, item.seq, item.frame, item.command, 0, 1,
+                0.0, 0.0, 0.0, 0.0, item.x, item.y, item.z, 0,
+            )  # fmt: skip
+        raise LinkError(f"ground station on {self.connection}: mission upload not acknowledged")
 
     async def wait_heartbeat(self, timeout_s: float) -> mav.Message:
         """The autopilot's next heartbeat.
