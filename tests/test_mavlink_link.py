@@ -77,32 +77,33 @@ async def test_udpin_answers_the_peer_that_spoke_last(tmp_path: Path) -> None:
     first, second = await open_udp_peer(), await open_udp_peer()
     link = daemon.link
     try:
-        # Before anybody spoke there is nowhere to send: the daemon tries, and counts drops.
-        assert await wait_for(
-            lambda: link.dropped["HEARTBEAT"] >= 1 and link.dropped["OBSTACLE_DISTANCE"] >= 3,
-            20.0,
-        ), f"dropped {dict(link.dropped)}"
-        assert sum(link.sent.values()) == 0
-        assert first.transport is not None and second.transport is not None
-        first.transport.sendto(first.heartbeat_bytes(), ("127.0.0.1", port))
-        assert await wait_for(lambda: len(first.of_type("OBSTACLE_DISTANCE")) >= 3, 10.0)
-        # Another peer speaks: from now on it gets everything, the first one nothing more.
-        second.transport.sendto(second.heartbeat_bytes(), ("127.0.0.1", port))
-        assert await wait_for(lambda: len(second.of_type("OBSTACLE_DISTANCE")) >= 3, 10.0)
-        heard_by_first = len(first.messages)
-        assert await wait_for(lambda: len(second.of_type("OBSTACLE_DISTANCE")) >= 8, 10.0)
-        assert len(first.messages) == heard_by_first
-        assert daemon.received["HEARTBEAT"] == 2
+        try:
+            # Before anybody spoke there is nowhere to send: the daemon tries, and counts drops.
+            assert await wait_for(
+                lambda: link.dropped["HEARTBEAT"] >= 1 and link.dropped["OBSTACLE_DISTANCE"] >= 3,
+                20.0,
+            ), f"dropped {dict(link.dropped)}"
+            assert sum(link.sent.values()) == 0
+            assert first.transport is not None and second.transport is not None
+            first.transport.sendto(first.heartbeat_bytes(), ("127.0.0.1", port))
+            assert await wait_for(lambda: len(first.of_type("OBSTACLE_DISTANCE")) >= 3, 10.0)
+            # Another peer speaks: from now on it gets everything, the first one nothing more.
+            second.transport.sendto(second.heartbeat_bytes(), ("127.0.0.1", port))
+            assert await wait_for(lambda: len(second.of_type("OBSTACLE_DISTANCE")) >= 3, 10.0)
+            heard_by_first = len(first.messages)
+            assert await wait_for(lambda: len(second.of_type("OBSTACLE_DISTANCE")) >= 8, 10.0)
+            assert len(first.messages) == heard_by_first
+            assert daemon.received["HEARTBEAT"] == 2
+        finally:
+            await stop_daemon(daemon, task)
+        # Every message the daemon counts as sent reached one of the two peers, and no other.
+        sent = sum(link.sent.values())
+        heard = lambda: len(first.messages) + len(second.messages)  # noqa: E731
+        assert await wait_for(lambda: heard() == sent, 5.0), f"sent {sent}, heard {heard()}"
+        assert first.parse_errors == second.parse_errors == 0
     finally:
-        await stop_daemon(daemon, task)
-    # Every message the daemon counts as sent reached one of the two peers, and no other.
-    sent = sum(link.sent.values())
-    assert await wait_for(lambda: len(first.messages) + len(second.messages) == sent, 5.0), (
-        f"sent {sent}, heard {len(first.messages)} + {len(second.messages)}"
-    )
-    assert first.parse_errors == second.parse_errors == 0
-    first.close()
-    second.close()
+        first.close()
+        second.close()
 
 
 class TcpPeer(MavlinkPeer):
