@@ -170,6 +170,11 @@ def test_vision_bench_command_writes_what_it_was_asked(
     ]
     assert all(p.seqs == [0, 0, 1, 2] for p in FakePipeline.created)
     assert len(FakePipeline.created) == 4
+    # Without --matcher: every matcher, in the bench's order.
+    assert main(["bench", "--quick", "--frames", "1", "--json", str(out)]) == 0
+    written = json.loads(out.read_text())
+    assert [r["matcher"] for r in written[:4]] == ["sgbm", "sad", "census", "segment"]
+    assert len(written) == 16
 
 
 async def test_link_bench_figures_come_from_the_measured_window(
