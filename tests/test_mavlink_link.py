@@ -7,6 +7,7 @@ import contextlib
 import os
 import pty
 import time
+import types
 from pathlib import Path
 
 import pytest
@@ -70,20 +71,39 @@ async def test_udpout_messages_decode_field_by_field(tmp_path: Path) -> None:
     assert "avoidd started" in texts
 
 
-async def test_udpin_answers_the_peer_that_spoke(tmp_path: Path) -> None:
+async def test_udpin_answers_the_peer_that_spoke_last(tmp_path: Path) -> None:
     port = free_udp_port()
     daemon, task = await start_daemon(synthetic_config(tmp_path, f"udpin:127.0.0.1:{port}"))
-    peer = await open_udp_peer()
+    first, second = await open_udp_peer(), await open_udp_peer()
+    link = daemon.link
     try:
-        await asyncio.sleep(0.3)
-        assert peer.messages == []  # nothing can be sent before a peer is known
-        assert peer.transport is not None
-        peer.transport.sendto(peer.heartbeat_bytes(), ("127.0.0.1", port))
-        assert await wait_for(lambda: len(peer.of_type("OBSTACLE_DISTANCE")) >= 3, 10.0)
-        assert await wait_for(lambda: daemon.received["HEARTBEAT"] >= 1, 2.0)
+        try:
+            # Before anybody spoke there is nowhere to send: the daemon tries, and counts drops.
+            assert await wait_for(
+                lambda: link.dropped["HEARTBEAT"] >= 1 and link.dropped["OBSTACLE_DISTANCE"] >= 3,
+                20.0,
+            ), f"dropped {dict(link.dropped)}"
+            assert sum(link.sent.values()) == 0
+            assert first.transport is not None and second.transport is not None
+            first.transport.sendto(first.heartbeat_bytes(), ("127.0.0.1", port))
+            assert await wait_for(lambda: len(first.of_type("OBSTACLE_DISTANCE")) >= 3, 10.0)
+            # Another peer speaks: from now on it gets everything, the first one nothing more.
+            second.transport.sendto(second.heartbeat_bytes(), ("127.0.0.1", port))
+            assert await wait_for(lambda: len(second.of_type("OBSTACLE_DISTANCE")) >= 3, 10.0)
+            heard_by_first = len(first.messages)
+            assert await wait_for(lambda: len(second.of_type("OBSTACLE_DISTANCE")) >= 8, 10.0)
+            assert len(first.messages) == heard_by_first
+            assert daemon.received["HEARTBEAT"] == 2
+        finally:
+            await stop_daemon(daemon, task)
+        # Every message the daemon counts as sent reached one of the two peers, and no other.
+        sent = sum(link.sent.values())
+        heard = lambda: len(first.messages) + len(second.messages)  # noqa: E731
+        assert await wait_for(lambda: heard() == sent, 5.0), f"sent {sent}, heard {heard()}"
+        assert first.parse_errors == second.parse_errors == 0
     finally:
-        await stop_daemon(daemon, task)
-        peer.close()
+        first.close()
+        second.close()
 
 
 class TcpPeer(MavlinkPeer):
@@ -190,6 +210,8 @@ async def test_stale_pipeline_says_unknown_as_each_autopilot_understands(
             lambda: any("stale" in m.text for m in autopilot.of_type("STATUSTEXT")), 10.0
         )
         t_stale_ns = time.monotonic_ns()
+        assert daemon.outputs is not None
+        withheld_when_stale = daemon.outputs.withheld
         assert await wait_for(
             lambda: any(
                 r.received_ns > t_stale_ns + 1_200_000_000
@@ -200,7 +222,13 @@ async def test_stale_pipeline_says_unknown_as_each_autopilot_understands(
         )
     finally:
         await stop_daemon(daemon, task)
+        # Let the mock read what is still on its socket before it closes.
+        drained = await wait_for(
+            lambda: autopilot.counts["OBSTACLE_DISTANCE"] == daemon.link.sent["OBSTACLE_DISTANCE"],
+            5.0,
+        )
         await autopilot.stop()
+    assert drained, "an OBSTACLE_DISTANCE the daemon sent never arrived"
     texts = [m.text for m in autopilot.of_type("STATUSTEXT")]
     assert "avoidd: front source ended" in texts
     assert "avoidd: front stale, camera lost" in texts
@@ -216,9 +244,41 @@ async def test_stale_pipeline_says_unknown_as_each_autopilot_understands(
     else:
         assert late_od and all(set(r.message.distances) == {65535} for r in late_od)
         assert all(r.message.increment_f == 10.0 for r in late_od)  # PX4's layout
-        # The rate does not drop: PX4 keeps hearing "unknown" and never times out.
-        times = [r.received_ns / 1e9 for r in late_od]
-        assert len(times) / (times[-1] - times[0]) > 12.0
+        # The rate does not drop: every tick of the send loop (paced as
+        # test_send_loop_keeps_its_schedule checks) still sends, and every message arrives.
+        assert daemon.outputs.withheld == withheld_when_stale
+        assert daemon.link.dropped["OBSTACLE_DISTANCE"] == 0
+
+
+class _Done(Exception):
+    """Ends a send loop under test."""
+
+
+async def test_send_loop_keeps_its_schedule(monkeypatch: pytest.MonkeyPatch) -> None:
+    # The send loop on a simulated clock: each send costs 30 ms, except one that overruns by
+    # half a period (caught up at once, the grid kept) and one that stalls for 350 ms (no burst
+    # of catch-up sends: the grid starts over from the stall).
+    from avoidd.daemon import outputs
+
+    clock = {"s": 100.0}
+    cost_s = {2: 0.15, 6: 0.35}
+    calls: list[float] = []
+
+    async def sleep(delay_s: float) -> None:
+        assert delay_s >= 0.0
+        clock["s"] += delay_s
+
+    def send() -> None:
+        calls.append(round(clock["s"], 6))
+        clock["s"] += cost_s.get(len(calls) - 1, 0.03)
+        if len(calls) == 10:
+            raise _Done
+
+    monkeypatch.setattr(outputs, "time", types.SimpleNamespace(monotonic=lambda: clock["s"]))
+    monkeypatch.setattr(outputs, "asyncio", types.SimpleNamespace(sleep=sleep))
+    with pytest.raises(_Done):
+        await outputs.every(10.0, send)
+    assert calls == [100.0, 100.1, 100.2, 100.35, 100.4, 100.5, 100.6, 100.95, 101.05, 101.15]
 
 
 @pytest.mark.parametrize("kind", ["udpout", "udpin"])

@@ -1,0 +1,240 @@
+"""The benchmarks' figures: fed known timings, they must report exactly the figures those give."""
+
+from __future__ import annotations
+
+import json
+import subprocess
+import sys
+import time
+import types
+from pathlib import Path
+from typing import Any, ClassVar
+
+import cv2
+import numpy as np
+import pytest
+
+from avoidd.bench import link as link_bench
+from avoidd.bench import vision as vision_bench
+from avoidd.mavlink.codec import Codec
+from avoidd.pipeline import HeadPipeline
+from avoidd.types import SectorScan, StereoFrame
+from tests.helpers import REPO
+
+# Per-stage milliseconds the fake pipeline reports: the warm-up frame is far slower, and the
+# measured frames take these times 1, 4 and 2 (median 2, mean 2.33).
+WARM_UP_MS = 1000.0
+BASE_MS = {"rectify": 0.5, "preprocess": 1.0, "match": 10.0, "post": 2.0, "depth": 0.25}
+BASE_MS["obstacles"] = 3.0
+FACTORS = (1.0, 4.0, 2.0)
+ENCODE_S = 0.000125
+SGBM_S = (1.0, 0.008, 0.002, 0.004)  # warm-up, then three frames: median 4 ms
+
+
+class FakeClock:
+    """A ``perf_counter`` that moves only when a fake piece of work says so."""
+
+    def __init__(self) -> None:
+        self.now_s = 50.0
+
+    def perf_counter(self) -> float:
+        return self.now_s
+
+
+class FakePipeline:
+    """Stands in for HeadPipeline: reports scripted stage timings and remembers its frames."""
+
+    created: ClassVar[list[FakePipeline]] = []
+
+    def __init__(self, head: Any, calibration: Any, max_range_m: float) -> None:
+        self.matcher = head.matcher.kind
+        self.seqs: list[int] = []
+        FakePipeline.created.append(self)
+
+    def process(self, frame: StereoFrame) -> Any:
+        self.seqs.append(frame.seq)
+        calls = len(self.seqs)
+        factor = FACTORS[calls - 2] if calls > 1 else None
+        timing = {k: WARM_UP_MS if factor is None else v * factor for k, v in BASE_MS.items()}
+        scan = SectorScan(0, np.full(72, np.inf, dtype=np.float32))
+        return types.SimpleNamespace(scan=scan, timing_ms=timing)
+
+
+def _fake_sgbm(clock: FakeClock) -> Any:
+    """A ``cv2.StereoSGBM`` whose ``compute`` takes the scripted times on the fake clock."""
+
+    class Matcher:
+        def __init__(self) -> None:
+            self.calls = 0
+
+        def compute(self, left: Any, right: Any) -> None:
+            clock.now_s += SGBM_S[self.calls]
+            self.calls += 1
+
+    return types.SimpleNamespace(create=lambda **_: Matcher())
+
+
+def _fake_codec(clock: FakeClock) -> Any:
+    """A codec whose ``pack`` takes ENCODE_S on the fake clock."""
+
+    class TimedCodec(Codec):
+        def pack(self, message: Any) -> bytes:
+            clock.now_s += ENCODE_S
+            return super().pack(message)
+
+    return TimedCodec
+
+
+def test_vision_bench_reports_medians_of_the_asked_frames(monkeypatch: pytest.MonkeyPatch) -> None:
+    clock = FakeClock()
+    FakePipeline.created = []
+    monkeypatch.setattr(vision_bench, "HeadPipeline", FakePipeline)
+    monkeypatch.setattr(vision_bench, "Codec", _fake_codec(clock))
+    monkeypatch.setattr(
+        vision_bench,
+        "time",
+        types.SimpleNamespace(perf_counter=clock.perf_counter, monotonic_ns=time.monotonic_ns),
+    )
+    monkeypatch.setattr(cv2, "StereoSGBM", _fake_sgbm(clock))
+    threads_before = cv2.getNumThreads()
+
+    records = vision_bench.run_bench(["sgbm", "census"], ((320, 240),), (64,), frames=3)
+
+    assert cv2.getNumThreads() == threads_before
+    # Two matchers, each with one thread and all: four pipelines, each fed the warm-up frame
+    # and then exactly the three frames asked for, in order.
+    assert [p.matcher for p in FakePipeline.created] == ["sgbm", "census"] * 2
+    assert all(p.seqs == [0, 0, 1, 2] for p in FakePipeline.created)
+    all_threads = cv2.getNumberOfCPUs()
+    assert [(r["matcher"], r["threads"]) for r in records] == [
+        ("sgbm", 1),
+        ("census", 1),
+        ("sgbm", all_threads),
+        ("census", all_threads),
+    ]
+    expected_stages = {
+        "rectify": 1.0,
+        "preprocess": 2.0,
+        "match": 20.0,
+        "post": 4.0,
+        "depth": 0.5,
+        "obstacles": 6.0,
+        "encode": 0.125,
+    }
+    for record in records:
+        assert (record["width"], record["height"], record["disparities"]) == (320, 240, 64)
+        assert record["stages_ms"] == pytest.approx(expected_stages, abs=1e-3)
+        assert record["total_ms"] == pytest.approx(33.625, abs=1e-3)
+        assert record["opencv_sgbm_ms"] == pytest.approx(4.0, abs=1e-3)
+        assert record["match_vs_opencv"] == pytest.approx(5.0, abs=1e-3)
+        assert record["total_vs_opencv"] == pytest.approx(8.406, abs=1e-3)
+        assert record["non_match_vs_match"] == pytest.approx(0.681, abs=1e-3)
+
+
+def test_vision_bench_times_real_frames_through_the_real_pipeline(
+    monkeypatch: pytest.MonkeyPatch,
+) -> None:
+    seen: list[tuple[int, tuple[int, ...]]] = []
+    real_process = HeadPipeline.process
+
+    def counting(self: HeadPipeline, frame: StereoFrame, *args: Any, **kwargs: Any) -> Any:
+        seen.append((frame.seq, frame.left.shape))
+        return real_process(self, frame, *args, **kwargs)
+
+    monkeypatch.setattr(HeadPipeline, "process", counting)
+    (record, _) = vision_bench.run_bench(["sad"], ((320, 240),), (64,), frames=2)
+    # Warm-up plus the two frames asked for, per thread setting; raw 320x240 colour frames.
+    assert [seq for seq, _ in seen] == [0, 0, 1] * 2
+    assert {shape[:2] for _, shape in seen} == {(240, 320)}
+    assert record["matcher"] == "sad" and record["threads"] == 1
+    # The bench calibration is distorted, so rectify does real work: it is never free.
+    assert record["stages_ms"]["rectify"] > 0.0
+
+
+def test_vision_bench_command_writes_what_it_was_asked(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    from avoidd.cli import main
+
+    FakePipeline.created = []
+    monkeypatch.setattr(vision_bench, "HeadPipeline", FakePipeline)
+    out = tmp_path / "bench.json"
+    assert main(["bench", "--matcher", "sad", "--quick", "--frames", "3", "--json", str(out)]) == 0
+    written = json.loads(out.read_text())
+    # --quick: 320x240 and 640x480 at 64 disparities, each with one thread and all.
+    assert [(r["matcher"], r["width"], r["disparities"]) for r in written] == [
+        ("sad", 320, 64),
+        ("sad", 320, 64),
+        ("sad", 640, 64),
+        ("sad", 640, 64),
+    ]
+    assert all(p.seqs == [0, 0, 1, 2] for p in FakePipeline.created)
+    assert len(FakePipeline.created) == 4
+    # Without --matcher: every matcher, in the bench's order.
+    assert main(["bench", "--quick", "--frames", "1", "--json", str(out)]) == 0
+    written = json.loads(out.read_text())
+    assert [r["matcher"] for r in written[:4]] == ["sgbm", "sad", "census", "segment"]
+    assert len(written) == 16
+
+
+async def test_link_bench_figures_come_from_the_measured_window(
+    monkeypatch: pytest.MonkeyPatch,
+) -> None:
+    # The real link and a real mock autopilot process over loopback; the clock and the CPU
+    # counter are fakes that say the window lasted 2 s and cost 0.5 s of CPU, and that note
+    # the link's message count at the instants the bench reads them.
+    links: list[Any] = []
+
+    class RecordedLink(link_bench.MavLink):
+        def __init__(self, *args: Any, **kwargs: Any) -> None:
+            super().__init__(*args, **kwargs)
+            links.append(self)
+
+    counts: list[int] = []
+    wall = iter([10.0, 12.0])
+    cpu = iter([1.0, 1.5])
+
+    def perf_counter() -> float:
+        counts.append(sum(links[0].received.values()))
+        return next(wall)
+
+    monkeypatch.setattr(link_bench, "MavLink", RecordedLink)
+    monkeypatch.setattr(link_bench, "time", types.SimpleNamespace(perf_counter=perf_counter))
+    monkeypatch.setattr(link_bench, "_cpu_s", lambda: next(cpu))
+    report = await link_bench.run_bench(200.0, 0.5)
+
+    assert len(counts) == 2
+    count = counts[1] - counts[0]
+    assert count > 0, "no message arrived in the window"
+    assert report["rate_asked_hz"] == 200.0
+    assert report["seconds"] == 2.0
+    assert report["received_per_s"] == round(count / 2.0, 1)
+    assert report["cpu_percent_one_core"] == 25.0
+    assert report["cpu_us_per_message"] == round(0.5e6 / count, 2)
+    assert report["parse_errors"] == 0
+    assert 0.0 <= report["max_own_loop_lag_ms"] <= report["max_loop_lag_ms"]
+    # The mock streams ATTITUDE, LOCAL_POSITION_NED and DISTANCE_SENSOR as 2:1:1.
+    received = links[0].received
+    assert received["ATTITUDE"] > 0 and received["DISTANCE_SENSOR"] > 0
+    assert (
+        abs(received["ATTITUDE"] - 2 * received["LOCAL_POSITION_NED"])
+        <= 0.05 * received["ATTITUDE"] + 4
+    )
+
+
+def test_link_bench_command_runs_and_writes_json(tmp_path: Path) -> None:
+    out = tmp_path / "link.json"
+    command = ["bench-link", "--rate=100", "--seconds=0.5", f"--json={out}"]
+    done = subprocess.run(
+        [sys.executable, "-m", "avoidd", *command],
+        cwd=REPO,
+        capture_output=True,
+        text=True,
+        timeout=60,
+        check=False,
+    )
+    assert done.returncode == 0, done.stderr
+    report = json.loads(out.read_text())
+    assert report["rate_asked_hz"] == 100.0 and report["parse_errors"] == 0
+    assert report["received_per_s"] > 0.0
+    assert f"received          {report['received_per_s']:.0f} msg/s" in done.stdout
