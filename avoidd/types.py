@@ -68,6 +68,8 @@ class StereoFrame(NamedTuple):
         right: Right image.
         truth: Exact geometry, for synthetic sources only.
         pose: Attitude and height recorded with the frame (recordings, synthetic scenes).
+        restarts: How many times the source started over before this frame (a looping
+            recording or moving scene): a change means the scene jumped, not moved.
     """
 
     seq: int
@@ -76,6 +78,7 @@ class StereoFrame(NamedTuple):
     right: Image
     truth: GroundTruth | None = None
     pose: FramePose | None = None
+    restarts: int = 0
 
 
 @dataclass(frozen=True)

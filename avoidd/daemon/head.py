@@ -87,6 +87,7 @@ class Head:
         self.name = config.name
         self.pipeline = HeadPipeline(config, calibration, max_range_m, perception)
         self.filter = SectorFilter(perception.temporal)
+        self._restarts_seen = 0
         self._pose_for = pose_for
         self._open_source = open_source
         self.slot: LatestSlot[StereoFrame] = LatestSlot(loop)
@@ -214,8 +215,13 @@ class Head:
                 self.stats.broken += 1
                 logger.exception("head '%s': frame %d failed", self.name, frame.seq)
                 continue
-            if self.latest is not None and result.t_capture_ns <= self.latest.t_capture_ns:
-                self.filter.reset()  # the source started over (a looping recording)
+            went_back = self.latest is not None and result.t_capture_ns <= self.latest.t_capture_ns
+            if went_back or frame.restarts != self._restarts_seen:
+                # The source started over (a looping recording): what the filter holds is of
+                # another place. Paced sources stamp frames with the clock, so their times
+                # never go back: they count their restarts instead.
+                self.filter.reset()
+                self._restarts_seen = frame.restarts
             self.latest_scan = self.filter.update(result.scan)
             self.latest = result
             self.stats.processed += 1

@@ -69,8 +69,10 @@ def obstacle_points(
         The kept pixels and their points.
     """
     camera_down = float(to_level.translation[2])
-    # Down coordinate relative to the camera: how far the point lies below the camera.
-    rise = depth_m * axis_per_depth(rig, depth_m.shape, to_level, 2)
+    # Down coordinate relative to the camera: how far the point lies below the camera (NaN
+    # for a far reading on a level ray: inf times 0; it is not kept either way).
+    with np.errstate(invalid="ignore"):
+        rise = depth_m * axis_per_depth(rig, depth_m.shape, to_level, 2)
     # Moved back along its ray to disparity d - tol, a point's offset from the camera scales
     # by 1 / s with s = 1 - tol * Z / fB; its ground test rise / s <= K (K: clearance of the
     # camera over the ground less the margin) is, for s > 0, rise + K * tol / fB * Z <= K.

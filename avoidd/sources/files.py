@@ -152,6 +152,7 @@ class FolderSource:
         self._pacer = Pacer(self._fps) if paced else None
         self._index = 0
         self._seq = 0
+        self._restarts = 0
 
     def _recorded_fps(self) -> float | None:
         times = [p.t_capture_ns for p in self._pairs if p.t_capture_ns is not None]
@@ -173,6 +174,7 @@ class FolderSource:
             if not self._loop:
                 raise SourceExhausted(self.description)
             self._index = 0
+            self._restarts += 1
         pair = self._pairs[self._index]
         self._index += 1
         seq = self._seq
@@ -194,6 +196,7 @@ class FolderSource:
             _as_uint8(left, pair.left),
             _as_uint8(right, pair.right),
             pose=pair.pose,
+            restarts=self._restarts,
         )
 
     def close(self) -> None:
@@ -226,6 +229,7 @@ class SideBySideVideoSource:
         self._fps = fps or (video_fps if 0 < video_fps < 1000 else DEFAULT_FPS)
         self._pacer = Pacer(self._fps) if paced else None
         self._seq = 0
+        self._restarts = 0
 
     def _open(self) -> cv2.VideoCapture:
         capture = cv2.VideoCapture(str(self._path))
@@ -244,6 +248,7 @@ class SideBySideVideoSource:
         if not ok and self._loop and self._seq > 0:
             self._capture.release()
             self._capture = self._open()
+            self._restarts += 1
             ok, image = self._capture.read()
         if not ok or image is None:
             raise SourceExhausted(self.description)
@@ -260,7 +265,7 @@ class SideBySideVideoSource:
         half = width // 2
         left = np.ascontiguousarray(image[:, :half], dtype=np.uint8)
         right = np.ascontiguousarray(image[:, half:], dtype=np.uint8)
-        return StereoFrame(seq, t_capture_ns, left, right)
+        return StereoFrame(seq, t_capture_ns, left, right, restarts=self._restarts)
 
     def close(self) -> None:
         """Release the video."""

@@ -17,6 +17,14 @@ logger = logging.getLogger(__name__)
 _STATIC_VARIANTS = 6
 
 
+def approach_period_s(config: SyntheticSourceConfig) -> float:
+    """How long one approach of a moving scene lasts before it starts over (0: static)."""
+    if config.approach_speed_mps <= 0 or not config.obstacles:
+        return 0.0
+    nearest_m = min(o.forward_m - o.depth_m / 2 for o in config.obstacles)
+    return max(nearest_m - config.min_forward_m, 0.0) / config.approach_speed_mps
+
+
 def scene_at(config: SyntheticSourceConfig, t_s: float) -> Scene:
     """The scene at scene time ``t_s``: obstacles moved toward the rig at the approach speed.
 
@@ -30,12 +38,8 @@ def scene_at(config: SyntheticSourceConfig, t_s: float) -> Scene:
     Returns:
         The scene to render.
     """
-    shift_m = 0.0
-    if config.approach_speed_mps > 0 and config.obstacles:
-        nearest_m = min(o.forward_m - o.depth_m / 2 for o in config.obstacles)
-        travel_m = max(nearest_m - config.min_forward_m, 0.0)
-        period_s = travel_m / config.approach_speed_mps
-        shift_m = config.approach_speed_mps * (t_s % period_s if period_s > 0 else 0.0)
+    period_s = approach_period_s(config)
+    shift_m = config.approach_speed_mps * (t_s % period_s) if period_s > 0 else 0.0
     obstacles: list[Box | Pole] = []
     for o in config.obstacles:
         forward = o.forward_m - shift_m
@@ -129,7 +133,9 @@ class SyntheticSource:
             t_capture_ns = self._pacer.wait()
         else:
             t_capture_ns = int(t_scene_s * 1e9)
-        return frame._replace(t_capture_ns=t_capture_ns)
+        period_s = approach_period_s(self._config)
+        restarts = int(t_scene_s // period_s) if period_s > 0 else 0
+        return frame._replace(t_capture_ns=t_capture_ns, restarts=restarts)
 
     def _warn_if_slow(self, render_s: float) -> None:
         if self._warned_slow or render_s <= 1.0 / self._config.fps:
