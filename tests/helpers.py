@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import asyncio
+import math
 import os
 import socket
 import time
@@ -235,3 +236,22 @@ async def start_hub() -> UdpHub:
     loop = asyncio.get_running_loop()
     _, hub = await loop.create_datagram_endpoint(UdpHub, local_addr=("127.0.0.1", 0))
     return hub
+
+
+def great_circle_ne(
+    origin_lat_deg: float, origin_lon_deg: float, lat_deg: float, lon_deg: float
+) -> tuple[float, float]:
+    """North and east of a point from an origin by haversine distance and initial bearing.
+
+    An oracle independent of avoidd's flat projection (WGS-84 equatorial radius).
+    """
+    phi1, phi2 = math.radians(origin_lat_deg), math.radians(lat_deg)
+    d_lambda = math.radians(lon_deg - origin_lon_deg)
+    h = math.sin((phi2 - phi1) / 2) ** 2
+    h += math.cos(phi1) * math.cos(phi2) * math.sin(d_lambda / 2) ** 2
+    distance_m = 2 * 6378137.0 * math.asin(math.sqrt(h))
+    bearing = math.atan2(
+        math.sin(d_lambda) * math.cos(phi2),
+        math.cos(phi1) * math.sin(phi2) - math.sin(phi1) * math.cos(phi2) * math.cos(d_lambda),
+    )
+    return distance_m * math.cos(bearing), distance_m * math.sin(bearing)

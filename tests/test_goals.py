@@ -15,26 +15,11 @@ from avoidd.mavlink import codec as mav
 from avoidd.mavlink.geo import GlobalPoint, north_east_m
 from avoidd.mavlink.mission import BACKOFF_NS, REFRESH_NS, RETRIES, MissionClient, MissionItem
 from avoidd.planner.core import Goal
+from tests.helpers import great_circle_ne
 
 ORIGIN = GlobalPoint(47.3977419, 8.5455938, 488.0)
 FRAME = goals.Frame(ORIGIN, home_up_m=0.4, altitude_m=2.0)
 S = 1_000_000_000
-
-
-def _great_circle(origin: GlobalPoint, lat_deg: float, lon_deg: float) -> tuple[float, float]:
-    """North and east from haversine distance and initial bearing (WGS-84 equatorial radius)."""
-    phi1, phi2 = math.radians(origin.lat_deg), math.radians(lat_deg)
-    d_lambda = math.radians(lon_deg - origin.lon_deg)
-    a = (
-        math.sin((phi2 - phi1) / 2) ** 2
-        + math.cos(phi1) * math.cos(phi2) * math.sin(d_lambda / 2) ** 2
-    )
-    distance_m = 2 * 6378137.0 * math.asin(math.sqrt(a))
-    bearing = math.atan2(
-        math.sin(d_lambda) * math.cos(phi2),
-        math.cos(phi1) * math.sin(phi2) - math.sin(phi1) * math.cos(phi2) * math.cos(d_lambda),
-    )
-    return distance_m * math.cos(bearing), distance_m * math.sin(bearing)
 
 
 @pytest.mark.parametrize(
@@ -45,7 +30,7 @@ def test_global_to_local_agrees_with_great_circle_within_a_thousandth(
 ) -> None:
     lat, lon = ORIGIN.lat_deg + d_lat, ORIGIN.lon_deg + d_lon
     north_m, east_m = north_east_m(ORIGIN, lat, lon)
-    truth_n, truth_e = _great_circle(ORIGIN, lat, lon)
+    truth_n, truth_e = great_circle_ne(ORIGIN.lat_deg, ORIGIN.lon_deg, lat, lon)
     assert math.hypot(north_m - truth_n, east_m - truth_e) <= 1e-3 * math.hypot(truth_n, truth_e)
 
 

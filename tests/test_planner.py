@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import itertools
 import math
 
 import numpy as np
@@ -277,3 +278,65 @@ def test_time_not_planning_is_not_time_without_progress() -> None:
     planner.observe_scan(_scan({}), 11 * S, _pose(11.0))
     decision = planner.decide(11 * S, _pose(11.0), goal, fresh=True)
     assert decision.state != "no path"
+
+
+def _wall_scan(pose: Pose, north_m: float, gaps: list[tuple[float, float]]) -> np.ndarray:
+    """What a 360-degree sensor at ``pose`` reads of a wall along ``north_m`` (east gaps open)."""
+    scan = np.full(SECTOR_COUNT, np.inf, dtype=np.float32)
+    for i in range(SECTOR_COUNT):
+        bearing = pose.yaw_rad + math.radians(5.0 * i)
+        cos_n = math.cos(bearing)
+        if cos_n <= 1e-6:
+            continue
+        distance = (north_m - pose.north_m) / cos_n
+        east = pose.east_m + distance * math.sin(bearing)
+        if distance < 20.0 and not any(low < east < high for low, high in gaps):
+            scan[i] = distance
+    return scan
+
+
+def test_a_gap_too_narrow_at_speed_makes_the_vehicle_slow_down_then_take_it() -> None:
+    # Flying north at 3 m/s toward a wall with a 4 m gap whose middle is 2.3 m to the left of
+    # the way: the gap is wider than the clearance (2 x 1.5 m) plus the turning buffer at
+    # walking pace, not at 3 m/s; no 5-degree direction runs through its middle.
+    goal = Goal(30.0, 0.0, 2.0)
+    gaps = [(-3.5, 0.5)]
+    fast = Pose(S, 5.0, 0.8, -2.0, 0.0, 3.0, 0.0)
+    planner = _planner(unknown="free")
+    planner.observe_scan(_wall_scan(fast, 15.0, gaps), S, fast)
+    approaching = planner.decide(S, fast, goal, fresh=True)
+    assert approaching.state == "moving" and approaching.speed_limit_m_s <= 1.0
+    # Slowed down: the line through the middle of the gap (-13 degrees).
+    slow = Pose(2 * S, 5.0, 0.8, -2.0, 0.0, 0.8, 0.0)
+    planner.observe_scan(_wall_scan(slow, 15.0, gaps), 2 * S, slow)
+    through = planner.decide(2 * S, slow, goal, fresh=True)
+    assert through.state == "moving"
+    # It crosses the wall's line inside the gap, the clearance (1.5 m) from both ends.
+    crossing_east = 0.8 + 10.0 * math.tan(math.radians(through.direction_deg or 90.0))
+    assert -2.0 <= crossing_east <= -1.0, through
+    # Without the gap, no reason to slow down yet (the speed law alone: 10 m free).
+    plain = _planner(unknown="free")
+    plain.observe_scan(_wall_scan(fast, 15.0, []), S, fast)
+    assert plain.decide(S, fast, goal, fresh=True).speed_limit_m_s > 2.0
+
+
+def test_after_two_side_changes_round_one_obstacle_a_third_is_a_dead_end() -> None:
+    # A pocket: whichever side the vehicle tries, the next scan shows that side closed and the
+    # other open (a cul-de-sac seen bit by bit). Sides 1 and 2 are allowed, not a third.
+    planner = _planner(unknown="free", memory_s=0.0, dead_end_scan_s=1.0)
+    goal = Goal(30.0, 0.0, 2.0)
+    states, sides = [], []
+    for step in range(8):
+        t_ns = S + step * S // 2
+        pose = Pose(t_ns, 10.0, 0.0, -2.0, 0.0)
+        closed = -1 if not sides or sides[-1] < 0 else 1  # the side it went last time
+        bins = {i: 2.0 for i in range(-3, 4)}  # the back of the pocket
+        bins |= {closed * i: 1.7 for i in range(4, 36)}
+        planner.observe_scan(_scan(bins), t_ns, pose)
+        decision = planner.decide(t_ns, pose, goal, fresh=True)
+        states.append(decision.state)
+        if decision.direction_deg is not None:
+            sides.append(1 if math.remainder(decision.direction_deg, 360.0) > 0 else -1)
+    changes = sum(a != b for a, b in itertools.pairwise(sides))
+    assert changes == 2, (sides, states)
+    assert states[-1] in {"dead end", "no path"}

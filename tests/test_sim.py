@@ -16,6 +16,7 @@ from avoidd.planner.core import Goal
 from avoidd.sim.flight import SimAutopilot, avoid_speed_m_s
 from avoidd.sim.lockstep import RIGS, LockstepRun
 from avoidd.sim.render import FIRST_OBSTACLE_ID, GROUND_ID, StereoRenderer
+from avoidd.sim.scenario import run_file
 from avoidd.sim.world import SimBox, World
 from avoidd.types import Mount
 from tests.helpers import REPO
@@ -139,12 +140,23 @@ def test_stereo_closed_loop_passes_a_post_and_a_wall_keeping_the_clearance() -> 
 def test_stale_perception_holds_within_one_cycle() -> None:
     scenario = _scenario("oracle", 6.0, timeline=[{"t_s": 3.0, "action": "camera_unplug"}])
     run = LockstepRun(scenario, _world([]), Goal(30, 0, 2))
-    run.run()
+    summary = run.run()
     # The scan ages past 300 ms 0.3 s after the last frame (at most one frame interval
     # before the unplug); the next planner cycle (50 ms) holds.
     late = [r for r in run.rows if r.t_s >= 3.0 + 0.3 + 0.067 + 0.05 + 0.1]
     assert late and all(r.gate == "hold" for r in late)
     assert all(r.setpoint is not None and r.setpoint[:2] == [0.0, 0.0] for r in late)
+    # Measured from the step perception went stale: within one 50 ms planner cycle.
+    assert summary.stale_to_hold_ms is not None and 0.0 <= summary.stale_to_hold_ms <= 50.0
+
+
+def test_head_on_at_a_wide_wall_the_vehicle_comes_up_to_its_margin() -> None:
+    """The built-in head-on scenario, stereo perception: the closest approach of the vehicle's
+    edge is the margin (1.0 m) within 15 %, and it never hits."""
+    _, summary = run_file(REPO / "sitl" / "scenarios" / "wall-headon.yaml")
+    assert not summary.collided
+    assert 0.85 <= summary.min_clearance_m <= 1.15, summary
+    assert summary.max_speed_m_s >= 2.9  # it did come in at full speed
 
 
 def test_a_mode_change_away_silences_the_planner() -> None:
@@ -227,4 +239,8 @@ def test_sim_batch_runs_every_seed_in_processes_and_totals(
         ("b-open", 1),
         ("b-open", 2),
     ]
-    assert "4 runs: 0 collisions" in capsys.readouterr().out
+    out = capsys.readouterr().out
+    assert "4 runs: 0 collisions" in out
+    reachable = [r for r in results if r["reachable"]]
+    reached = sum(r["reached"] for r in reachable)
+    assert f"reachable goals reached {reached}/{len(reachable)}" in out

@@ -16,12 +16,11 @@ from avoidd.daemon.outputs import Outputs
 from avoidd.errors import SourceError
 from avoidd.loading import load_all
 from avoidd.mavlink import codec as mav
-from avoidd.mavlink.geo import GlobalPoint
 from avoidd.mavlink.layout import ARDUPILOT_LAYOUT
 from avoidd.mavlink.mission import MissionItem
 from avoidd.sim.ardupilot import ArduPilotSitl
 from avoidd.sources import open_source
-from tests.helpers import free_udp_port, synthetic_config, wait_for
+from tests.helpers import free_udp_port, great_circle_ne, synthetic_config, wait_for
 from tests.test_wire_layout import ardupilot_sectors
 
 pytestmark = pytest.mark.sitl
@@ -252,20 +251,6 @@ async def test_streams_come_back_within_two_seconds_of_a_reboot(
     assert rebooted >= 1 or any("link up" in t for t in link_downs)
 
 
-def _great_circle_ne(origin: GlobalPoint, lat_deg: float, lon_deg: float) -> tuple[float, float]:
-    """North and east by haversine distance and bearing (independent of avoidd's projection)."""
-    phi1, phi2 = math.radians(origin.lat_deg), math.radians(lat_deg)
-    d_lambda = math.radians(lon_deg - origin.lon_deg)
-    h = math.sin((phi2 - phi1) / 2) ** 2
-    h += math.cos(phi1) * math.cos(phi2) * math.sin(d_lambda / 2) ** 2
-    distance_m = 2 * 6378137.0 * math.asin(math.sqrt(h))
-    bearing = math.atan2(
-        math.sin(d_lambda) * math.cos(phi2),
-        math.cos(phi1) * math.sin(phi2) - math.sin(phi1) * math.cos(phi2) * math.cos(d_lambda),
-    )
-    return distance_m * math.cos(bearing), distance_m * math.sin(bearing)
-
-
 async def test_mission_and_reposition_from_a_real_ardupilot(sitl_dir: Path, tmp_path: Path) -> None:
     """avoidd reads the mission a ground station uploaded to ArduPilot (item 0, home, skipped)
     and takes a DO_REPOSITION the ground station addresses to it through ArduPilot's routing."""
@@ -301,7 +286,9 @@ async def test_mission_and_reposition_from_a_real_ardupilot(sitl_dir: Path, tmp_
             25.0,
         )
         goal = daemon.avoidance.goal
-        north, east = _great_circle_ne(origin, home_lat + 0.0004, home_lon + 0.0003)
+        north, east = great_circle_ne(
+            origin.lat_deg, origin.lon_deg, home_lat + 0.0004, home_lon + 0.0003
+        )
         assert math.hypot(goal.north_m - north, goal.east_m - east) < 0.1, (goal, north, east)
         home_up = daemon.vehicle.home_up_m
         assert home_up is not None and abs(home_up) < 1.0
@@ -331,7 +318,7 @@ async def test_mission_and_reposition_from_a_real_ardupilot(sitl_dir: Path, tmp_
         goal = daemon.avoidance.goal
         assert goal.label == "GCS goal" and daemon.avoidance.goal_source == "gcs"
         assert goal.north_m == pytest.approx(
-            _great_circle_ne(origin, lat / 1e7, lon / 1e7)[0], abs=0.1
+            great_circle_ne(origin.lat_deg, origin.lon_deg, lat / 1e7, lon / 1e7)[0], abs=0.1
         )
     finally:
         await _stop(sitl, daemon, task)

@@ -10,6 +10,7 @@ from pathlib import Path
 from typing import Any
 
 from avoidd.commands import EXIT_FAILURE, EXIT_OK
+from avoidd.errors import ConfigError
 
 
 def configure(name: str, parser: argparse.ArgumentParser) -> None:
@@ -27,6 +28,11 @@ def configure(name: str, parser: argparse.ArgumentParser) -> None:
     )
     batch.add_argument("--workers", type=int, default=os.cpu_count() or 1, help="local processes")
     batch.add_argument("--json", type=Path, help="also write every summary as JSON")
+    batch.add_argument(
+        "--max-speed",
+        type=float,
+        help="top speed for every scenario, m/s (a speed sweep over the same batch)",
+    )
     batch.set_defaults(handler=run_batch)
 
 
@@ -44,10 +50,10 @@ def run_one(args: argparse.Namespace) -> int:
     return EXIT_OK if summary.passed else EXIT_FAILURE
 
 
-def _one(path: Path, seed: int) -> dict[str, Any]:
+def _one(path: Path, seed: int, max_speed_m_s: float | None) -> dict[str, Any]:
     from avoidd.sim.scenario import run_file
 
-    _, summary = run_file(path, seed)
+    _, summary = run_file(path, seed, max_speed_m_s)
     return summary.as_json() | {"file": str(path), "wall_time_s": round(summary.wall_time_s, 1)}
 
 
@@ -58,13 +64,17 @@ def run_batch(args: argparse.Namespace) -> int:
 
     for path in args.scenarios:
         load_scenario(path)  # every file valid before anything runs
+    if args.max_speed is not None and not 0.1 <= args.max_speed <= 20.0:
+        raise ConfigError([f"--max-speed {args.max_speed}: give 0.1 to 20 m/s"])
     jobs = [
         (path, own_seed(path) + offset) for path in args.scenarios for offset in range(args.seeds)
     ]
     progress = Progress(len(jobs))
     results: list[dict[str, Any]] = []
     with ProcessPoolExecutor(max_workers=max(1, args.workers)) as pool:
-        futures = {pool.submit(_one, path, seed): (path, seed) for path, seed in jobs}
+        futures = {
+            pool.submit(_one, path, seed, args.max_speed): (path, seed) for path, seed in jobs
+        }
         for future in as_completed(futures):
             result = future.result()
             results.append(result)
@@ -82,7 +92,11 @@ def _number(value: float | None, digits: int = 2) -> str:
 
 
 def format_table(results: list[dict[str, Any]]) -> str:
-    """One line per run: collision, clearance, goal, time, speed, side changes, verdict."""
+    """One line per run: collision, clearance, goal, time, speed, side changes, verdict.
+
+    ``sides`` is the most side changes within one detour (a detour lasts while the chosen way is
+    more than 10 degrees off the goal's direction).
+    """
     lines = [
         f"{'scenario':24} {'seed':>4} {'coll':>4} {'min m':>6} {'p01 m':>6} {'goal':>4} "
         f"{'t goal':>6} {'mean v':>6} {'sides':>5} {'end':9} {'wall s':>6} verdict"
@@ -92,7 +106,8 @@ def format_table(results: list[dict[str, Any]]) -> str:
             f"{r['name'][:24]:24} {r['seed']:>4} {'YES' if r['collided'] else 'no':>4} "
             f"{_number(r['min_clearance_m']):>6} {_number(r['clearance_p01_m']):>6} "
             f"{'yes' if r['reached'] else 'no':>4} {_number(r['time_to_goal_s'], 1):>6} "
-            f"{_number(r['mean_speed_m_s']):>6} {r['side_changes']:>5} {r['end_state'][:9]:9} "
+            f"{_number(r['mean_speed_m_s']):>6} {r.get('detour_side_changes', 0):>5} "
+            f"{r['end_state'][:9]:9} "
             f"{_number(r.get('wall_time_s'), 1):>6} "
             f"{'pass' if r['passed'] else 'FAIL: ' + '; '.join(r['failures'])}"
         )
@@ -107,9 +122,25 @@ def format_totals(results: list[dict[str, Any]]) -> str:
     times = [r["time_to_goal_s"] for r in reached]
     mean_time = sum(times) / len(times) if times else None
     passed = sum(r["passed"] for r in results)
+    reachable = [r for r in results if r.get("reachable", True)]
+    reached_reachable = sum(r["reached"] for r in reachable)
+    dead_ends = [r for r in results if not r.get("reachable", True)]
+    no_path = sum(r["end_state"] == "no path" for r in dead_ends)
+    clear = sum(
+        r["clearance_p01_m"] is None or r["clearance_p01_m"] >= r.get("clearance_target_m", 0.0)
+        for r in results
+    )
+    sides = max((r.get("detour_side_changes", 0) for r in results), default=0)
+    holds = [r["stale_to_hold_ms"] for r in results if r.get("stale_to_hold_ms") is not None]
+    hold = f"; stale to zero-velocity setpoint at most {max(holds):.0f} ms" if holds else ""
+    share = 100.0 * reached_reachable / len(reachable) if reachable else 100.0
     return (
         f"{count} runs: {collisions} collisions, {len(reached)} goals reached, "
-        f"{passed} passed; mean time to goal {_number(mean_time, 1)} s"
+        f"{passed} passed; mean time to goal {_number(mean_time, 1)} s\n"
+        f"reachable goals reached {reached_reachable}/{len(reachable)} ({share:.1f} %); "
+        f"dead ends ending 'no path' {no_path}/{len(dead_ends)}; clearance >= margin - 0.1 m "
+        f"in 99 % of steps: {clear}/{count} runs; most side changes in one detour: {sides}"
+        f"{hold}"
     )
 
 

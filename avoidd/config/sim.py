@@ -139,12 +139,16 @@ class PassConfig(Strict):
             in 99 % of the time steps (None: not checked).
         reach_goal_s: The goal must be reached within this time (None: not required).
         end_state: The planner state the run must end in (``no path`` for a dead end).
+        closest_approach_m: The smallest edge clearance of the run must lie within these
+            bounds (a head-on wall: the vehicle comes up to its margin, not nearer, not far
+            short of it).
     """
 
     no_collision: bool = True
     min_clearance_m: float | None = None
     reach_goal_s: float | None = Field(None, gt=0.0)
     end_state: Literal["arrived", "no path", "moving", "stale"] | None = None
+    closest_approach_m: tuple[float, float] | None = None
 
 
 class ScenarioConfig(Strict):

@@ -27,18 +27,31 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from avoidd.config import AvoidanceConfig
-from avoidd.planner.geometry import directions_rad, free_distance, wrap_rad
+from avoidd.planner.geometry import directions_rad, free_distance, gap_headings, wrap_rad
 from avoidd.planner.memory import ObstacleMemory
 from avoidd.planner.visibility import VisibilityGrid
 
 MU_GOAL = 5.0
 MU_HEADING = 2.0
 MU_PREVIOUS = 2.0
+MU_OBSTRUCTED = 5.0
 COMMITMENT_COST = 3.0 * math.pi * MU_GOAL
+MAX_SIDE_CHANGES = 2
+"""Side changes allowed while going round one obstacle (the goal direction blocked); a third
+would be dithering: the planner looks for a way on the side it is on, then gives up."""
 """Extra cost of the side of the goal direction the vehicle is not committed to."""
 _ALTITUDE_GAIN = 1.0
 _BUFFER_M = 0.25
 _BUFFER_S = 0.15
+_SLOW_FOR_GAP_M_S = 1.0
+_ONWARD_RAD = math.radians(100.0)
+"""Ways within this of the goal's direction go onward; beyond it the vehicle backs out."""
+_BACK_RAD = math.radians(170.0)
+_LEAVE_M = 0.3
+"""A way stays admissible down to this much free distance (it becomes admissible from 1 m):
+the speed law brings the vehicle up to its margin and it stops there, not half a metre short."""
+"""Ways at least this far from the goal's direction lead straight back."""
+"""Speed at which the turning buffer lets a gap open that is too narrow at full speed."""
 """Turning buffer: metres, and metres per m/s of speed (see :meth:`Planner.decide`)."""
 _YAW_GAIN = 2.0
 _PAUSE_NS = 1_000_000_000
@@ -136,6 +149,8 @@ class Planner:
     _admissible: np.ndarray = field(init=False)
     _previous_rad: float | None = None
     _side: int = 0
+    _side_changes: int = 0
+    _side_onward: bool = True
     _dead_end_since_ns: int | None = None
     _turned_rad: float = 0.0
     _last_yaw_rad: float = 0.0
@@ -178,6 +193,7 @@ class Planner:
         self._admissible[:] = False
         self._previous_rad = None
         self._side = 0
+        self._side_changes = 0
         self._dead_end_since_ns = None
         self._best_goal_m = math.inf
         self._best_since_ns = None
@@ -219,7 +235,12 @@ class Planner:
             nearest_m = float(np.min(np.hypot(offsets[:, 0], offsets[:, 1])))
             inside = max(nearest_m - _INSIDE_SLACK_M, self.config.vehicle_radius_m)
             clearance = min(clearance, inside)
-        return free_distance(offsets, headings_rad, clearance)
+        # Turning onto a heading, the velocity across it carries the vehicle sideways for the
+        # latency and while it brakes that part (v / 2a): its path is shifted by that much.
+        velocity = (pose.north_m_s, pose.east_m_s)
+        speed = math.hypot(*velocity)
+        drift_s = self.config.latency_ms / 1000.0 + speed / (2.0 * self.config.max_accel_m_s2)
+        return free_distance(offsets, headings_rad, clearance, velocity, drift_s)
 
     def free_m(self, pose: Pose, headings_rad: np.ndarray, buffer_m: float = 0.0) -> np.ndarray:
         """Free distance along each heading from a pose.
@@ -278,35 +299,58 @@ class Planner:
         buffer = _BUFFER_M + _BUFFER_S * math.hypot(pose.north_m_s, pose.east_m_s)
         free = self.free_m(pose, self._directions, buffer)
         enter = max(config.acceptance_radius_m, 1.0)
-        leave = 0.5 * enter
+        leave = _LEAVE_M
         self._admissible = np.where(
             free >= enter, True, np.where(free < leave, False, self._admissible)
         )
         goal_free = float(self.free_m(pose, np.array([goal_rad]), buffer)[0])
-        candidates = list(np.flatnonzero(self._admissible))
+        # The admissible grid directions, and the middles of gaps the grid may step over.
+        headings = self._directions[self._admissible]
+        headings_free = free[self._admissible]
+        gaps = gap_headings(
+            self.memory.offsets((pose.north_m, pose.east_m)),
+            self.clearance_m + buffer,
+            self._look_m,
+        )
+        if gaps.size:
+            gaps_free = self.free_m(pose, gaps, buffer)
+            headings = np.concatenate([headings, gaps[gaps_free >= enter]])
+            headings_free = np.concatenate([headings_free, gaps_free[gaps_free >= enter]])
+        keep = np.ones(headings.size, dtype=np.bool_)
         if self._dead_end_since_ns is not None:
             # While turning to look, only a way toward the goal side ends the search; once the
             # search is over, any way out will do (backing out of a pocket).
-            toward = [c for c in candidates if abs(wrap_rad(self._directions[c] - goal_rad)) < 1.6]
             searching = (now_ns - self._dead_end_since_ns) / 1e9 < self.config.dead_end_scan_s
-            candidates = toward if searching else candidates
-        if not candidates:
+            if searching:
+                keep &= np.abs(wrap_rad(headings - goal_rad)) < 1.6
+        goal_open = goal_free >= min(goal_m, enter)
+        if goal_open:
+            self._side = 0
+            self._side_changes = 0
+        elif self._side and self._side_changes >= MAX_SIDE_CHANGES:
+            # Both sides were tried: only the side it is on now, or straight back out of the
+            # pocket.
+            delta_all = wrap_rad(headings - goal_rad)
+            keep &= (np.sign(delta_all) != -self._side) | (np.abs(delta_all) >= _BACK_RAD)
+        headings, headings_free = headings[keep], headings_free[keep]
+        if headings.size == 0:
             return self._dead_end(now_ns, pose, goal_m, goal_rad)
         self._dead_end_since_ns = None
-        headings = self._directions[candidates]
         goal_delta = wrap_rad(headings - goal_rad)
         cost = MU_GOAL * np.abs(goal_delta)
         cost += MU_HEADING * np.abs(wrap_rad(headings - pose.yaw_rad))
         if self._previous_rad is not None:
             cost += MU_PREVIOUS * np.abs(wrap_rad(headings - self._previous_rad))
-        goal_open = goal_free >= min(goal_m, enter)
-        if goal_open:
-            self._side = 0
-        elif self._side:
+        if self._side and not goal_open:
             cost += np.where(np.sign(goal_delta) == -self._side, COMMITMENT_COST, 0.0)
+        # A way blocked farther on costs more than one that runs clear (to the goal or as far
+        # as the sensors see): gaps and ends are aimed for before the vehicle is at the wall.
+        horizon_m = min(goal_m, self.max_range_m)
+        cost += MU_OBSTRUCTED * np.clip(1.0 - headings_free / horizon_m, 0.0, 1.0)
         best = int(np.argmin(cost))
         chosen = float(headings[best])
-        chosen_free = float(free[candidates[best]])
+        chosen_free = float(headings_free[best])
+        slow_for = self._better_way_when_slower(pose, goal_rad, goal_m, chosen, chosen_free, buffer)
         if goal_open and abs(float(wrap_rad(chosen - goal_rad))) <= math.radians(5.0):
             # Within a step of the goal direction: head straight for the goal.
             chosen, chosen_free = goal_rad, goal_free
@@ -314,12 +358,18 @@ class Planner:
         chosen_free = float(self.free_m(pose, np.array([chosen]))[0])
         delta = float(wrap_rad(chosen - goal_rad))
         if not goal_open and abs(delta) > math.radians(2.5):
-            self._side = 1 if delta > 0 else -1
+            side = 1 if delta > 0 else -1
+            onward = abs(delta) <= _ONWARD_RAD
+            if self._side and side != self._side and onward and self._side_onward:
+                self._side_changes += 1
+            self._side = side
+            self._side_onward = onward
         self._previous_rad = chosen
         speed = min(
             config.max_speed_m_s,
             stopping_speed_m_s(chosen_free, config.max_accel_m_s2, config.latency_ms / 1000.0),
             math.sqrt(2.0 * config.max_accel_m_s2 * goal_m),
+            slow_for,
         )
         # The camera looks where the vehicle goes, or, when the way to the goal is only
         # blocked by what has not been seen, that way first; the vehicle slows down while
@@ -339,6 +389,41 @@ class Planner:
             chosen_free,
             goal_m,
         )
+
+    def _better_way_when_slower(
+        self,
+        pose: Pose,
+        goal_rad: float,
+        goal_m: float,
+        chosen_rad: float,
+        chosen_free_m: float,
+        buffer_m: float,
+    ) -> float:
+        """A speed limit that lets a way through open: ``inf`` when none is needed.
+
+        The turning buffer grows with speed, so a gap that is wide enough at walking pace is
+        closed to a vehicle flying at it. When the chosen way is blocked farther on and, at
+        walking pace, a way would run clear (to the goal or as far as the sensors see) no more
+        than 30 degrees farther from the goal's direction, on the side the vehicle is committed
+        to, slow to :data:`_SLOW_FOR_GAP_M_S` so that it opens.
+        """
+        if buffer_m <= _BUFFER_M + _BUFFER_S * _SLOW_FOR_GAP_M_S:
+            return math.inf
+        clear_m = min(goal_m, self.max_range_m)
+        if chosen_free_m >= clear_m:
+            return math.inf
+        offsets = self.memory.offsets((pose.north_m, pose.east_m))
+        gaps = gap_headings(offsets, self.clearance_m + _BUFFER_M, self._look_m)
+        headings = np.concatenate([self._directions, gaps])
+        headings = headings[self.free_m(pose, headings, _BUFFER_M) >= clear_m]
+        goal_delta = wrap_rad(headings - goal_rad)
+        if self._side:
+            goal_delta = goal_delta[np.sign(goal_delta) != -self._side]
+        if goal_delta.size == 0:
+            return math.inf
+        chosen_off = abs(float(wrap_rad(chosen_rad - goal_rad)))
+        worse_rad = float(np.min(np.abs(goal_delta))) - chosen_off
+        return _SLOW_FOR_GAP_M_S if worse_rad <= math.radians(30.0) else math.inf
 
     def _look_direction(
         self, pose: Pose, goal_rad: float, chosen_rad: float, buffer_m: float

@@ -23,7 +23,13 @@ def wrap_rad(angle: Array | float) -> Array:
     return np.asarray(-(np.remainder(-np.asarray(angle) + math.pi, 2 * math.pi) - math.pi))
 
 
-def free_distance(offsets_ne: Array, headings_rad: Array, clearance_m: float) -> Array:
+def free_distance(
+    offsets_ne: Array,
+    headings_rad: Array,
+    clearance_m: float,
+    velocity_ne: tuple[float, float] = (0.0, 0.0),
+    drift_s: float = 0.0,
+) -> Array:
     """How far the vehicle can go along each heading before it is ``clearance_m`` from a point.
 
     This is the VFH+ enlargement, exact for a disc: a point at distance ``d`` blocks the
@@ -33,6 +39,9 @@ def free_distance(offsets_ne: Array, headings_rad: Array, clearance_m: float) ->
         offsets_ne: (N, 2) obstacle points relative to the vehicle, north and east (metres).
         headings_rad: (K,) headings, radians from north, clockwise.
         clearance_m: Vehicle radius plus margin.
+        velocity_ne: The vehicle's velocity (m/s): turning onto a heading, the part of it
+            across that heading carries the vehicle sideways ...
+        drift_s: ... for this long (its path is shifted by that much).
 
     Returns:
         (K,) distances; 0 toward a point already within the clearance, ``inf`` when nothing
@@ -43,6 +52,9 @@ def free_distance(offsets_ne: Array, headings_rad: Array, clearance_m: float) ->
     unit = np.stack([np.cos(headings_rad), np.sin(headings_rad)], axis=1)  # (K, 2)
     along = unit @ offsets_ne.T  # (K, N)
     across = unit[:, 0:1] * offsets_ne[:, 1] - unit[:, 1:2] * offsets_ne[:, 0]
+    if drift_s > 0.0:
+        sideways = unit[:, 0] * velocity_ne[1] - unit[:, 1] * velocity_ne[0]  # (K,)
+        across = across - (sideways * drift_s)[:, None]
     reach = clearance_m * clearance_m - across * across
     with np.errstate(invalid="ignore"):
         contact = along - np.sqrt(np.maximum(reach, 0.0))
@@ -51,3 +63,42 @@ def free_distance(offsets_ne: Array, headings_rad: Array, clearance_m: float) ->
     blocking = (reach > 0) & (along > 0)
     distance = np.where(blocking, np.maximum(contact, 0.0), np.inf)
     return np.asarray(distance.min(axis=1))
+
+
+def gap_headings(offsets_ne: Array, clearance_m: float, within_m: float, most: int = 12) -> Array:
+    """Headings through the middle of the gaps between obstacle points.
+
+    The 72 directions are 5 degrees apart, so from a few metres out the one line through a gap
+    barely wider than the vehicle's clearance may fall between two of them. Sorted by bearing,
+    two neighbouring points at least ``2 * clearance_m`` apart leave a gap the vehicle fits
+    through; its middle is a heading worth trying.
+
+    Args:
+        offsets_ne: (N, 2) obstacle points relative to the vehicle, north and east (metres).
+        clearance_m: Vehicle radius plus margin (and any buffer).
+        within_m: Only gaps whose nearer side is this close count (farther ones can wait).
+        most: At most this many gaps, the nearest first.
+
+    Returns:
+        (K,) headings in radians, K <= ``most``.
+    """
+    if offsets_ne.shape[0] < 2:
+        return np.zeros(0)
+    ranges = np.hypot(offsets_ne[:, 0], offsets_ne[:, 1])
+    near = offsets_ne[ranges <= within_m]
+    if near.shape[0] < 2:
+        return np.zeros(0)
+    order = np.argsort(np.arctan2(near[:, 1], near[:, 0]))
+    points = near[order]
+    following = np.roll(points, -1, axis=0)
+    width = np.hypot(*(following - points).T)
+    middle = (points + following) / 2.0
+    # Neighbours by bearing with room between them (the wrap-around pair included); a gap
+    # wider than a half turn is open space, not a gap.
+    cross = points[:, 0] * following[:, 1] - points[:, 1] * following[:, 0]
+    fits = (width >= 2.0 * clearance_m) & (cross > 0)
+    if not fits.any():
+        return np.zeros(0)
+    nearer = np.minimum(np.hypot(*points.T), np.hypot(*following.T))[fits]
+    chosen = middle[fits][np.argsort(nearer)[:most]]
+    return np.asarray(np.arctan2(chosen[:, 1], chosen[:, 0]), np.float64)

@@ -70,7 +70,14 @@ class ObstacleMemory:
             offset = self.north_east - origin
             at = np.hypot(offset[:, 0], offset[:, 1])
             bin_of = bearing_bins(np.arctan2(offset[:, 1], offset[:, 0]), yaw_rad)
-            seen_past = measured[bin_of] & (seen_to[bin_of] > at + _SEE_PAST_M)
+            # Seen past only when its bin and both neighbours look beyond it: a point near a
+            # bin's edge (the end of a wall beside a gap) is not cleared by the bin that looks
+            # through the gap next to it.
+            past = measured & (seen_to > 0)
+            seen_past = np.ones(bin_of.size, dtype=np.bool_)
+            for step in (-1, 0, 1):
+                neighbour = (bin_of + step) % SECTOR_COUNT
+                seen_past &= past[neighbour] & (seen_to[neighbour] > at + _SEE_PAST_M)
             keep = ~seen_past
             self.north_east, self.t_ns = self.north_east[keep], self.t_ns[keep]
         finite = np.isfinite(distance)

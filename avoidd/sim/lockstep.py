@@ -64,6 +64,10 @@ class Summary:
     mean_speed_m_s: float = 0.0
     max_speed_m_s: float = 0.0
     side_changes: int = 0
+    detour_side_changes: int = 0
+    reachable: bool = True
+    clearance_target_m: float = 0.0
+    stale_to_hold_ms: float | None = None
     stale_holds: int = 0
     passed: bool = False
     failures: list[str] = field(default_factory=list)
@@ -184,6 +188,9 @@ class LockstepRun:
         scenario = self.scenario
         avoidance = scenario.avoidance
         summary = Summary(scenario.name, self.seed, scenario.perception)
+        # The target: radius + margin - 0.1 m in 99 % of steps (edge clearance: margin
+        # - 0.1 m, as clearance here is measured from the vehicle's edge).
+        summary.clearance_target_m = round(scenario.avoidance.margin_m - 0.1, 4)
         steps = round(scenario.duration_s / STEP_S)
         frame_every = round(1.0 / (scenario.fps * STEP_S))
         plan_every = round(1.0 / (avoidance.setpoint_rate_hz * STEP_S))
@@ -196,6 +203,9 @@ class LockstepRun:
         gate_now = Gate.SILENT
         setpoint: list[float] | None = None
         last_side = 0
+        detour_changes = 0
+        stale_since_ns: int | None = None
+        was_fresh = False
         radius = avoidance.vehicle_radius_m
         for step in range(steps + 1):
             t_s = step * STEP_S
@@ -212,6 +222,9 @@ class LockstepRun:
                 self._latest = (scan, pose_then)
                 self.planner.observe_scan(scan.distance_m, scan.t_capture_ns, pose_then)
             fresh = self.fresh_scan(now_ns)
+            if fresh is None and was_fresh:
+                stale_since_ns = now_ns  # perception just went stale
+            was_fresh = fresh is not None
             if step % send_every == 0:
                 self._send_obstacle_distance(fresh, now_ns)
             if step % plan_every == 0:
@@ -220,9 +233,20 @@ class LockstepRun:
                     side = self._side(decision.direction_deg)
                     if side and last_side and side != last_side:
                         summary.side_changes += 1
-                    last_side = side or last_side
+                        detour_changes += 1
+                        summary.detour_side_changes = max(
+                            summary.detour_side_changes, detour_changes
+                        )
+                    if not side:
+                        detour_changes = 0  # heading for the goal again: that detour is over
+                    last_side = side
                 if gate_now is Gate.HOLD:
                     summary.stale_holds += 1
+                    if stale_since_ns is not None and decision.holding:
+                        # Stale perception to a zero-velocity setpoint (the worst of the run).
+                        waited_ms = (now_ns - stale_since_ns) / 1e6
+                        summary.stale_to_hold_ms = max(summary.stale_to_hold_ms or 0.0, waited_ms)
+                        stale_since_ns = None
             velocity, yaw_rate = self.autopilot.command(now_ns, state.yaw_rad)
             self.vehicle.step(STEP_S, velocity, yaw_rate)
             state = self.vehicle.state
@@ -346,6 +370,7 @@ class LockstepRun:
 
     def _judge(self, summary: Summary) -> None:
         passing = self.scenario.passing
+        summary.reachable = passing.end_state != "no path"
         if passing.no_collision and summary.collided:
             summary.failures.append(f"collision at {summary.collision_t_s:.2f} s")
         needed = passing.min_clearance_m
@@ -359,6 +384,12 @@ class LockstepRun:
             summary.failures.append(f"goal not reached within {passing.reach_goal_s} s")
         if passing.end_state is not None and summary.end_state != passing.end_state:
             summary.failures.append(f"ended '{summary.end_state}', not '{passing.end_state}'")
+        if passing.closest_approach_m is not None:
+            low, high = passing.closest_approach_m
+            if not low <= summary.min_clearance_m <= high:
+                summary.failures.append(
+                    f"closest approach {summary.min_clearance_m:.2f} m, not {low}..{high} m"
+                )
         summary.passed = not summary.failures
 
 

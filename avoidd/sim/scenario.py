@@ -47,9 +47,21 @@ def prepare(scenario: ScenarioConfig, seed: int | None = None) -> LockstepRun:
     )
 
 
-def run_file(path: Path, seed: int | None = None) -> tuple[LockstepRun, Summary]:
-    """Load, prepare and run one scenario file."""
-    run = prepare(load_scenario(path), seed)
+def run_file(
+    path: Path, seed: int | None = None, max_speed_m_s: float | None = None
+) -> tuple[LockstepRun, Summary]:
+    """Load, prepare and run one scenario file.
+
+    Args:
+        path: The scenario file.
+        seed: Seed override (None: the scenario's own).
+        max_speed_m_s: Top speed override (a speed sweep over the same batch).
+    """
+    scenario = load_scenario(path)
+    if max_speed_m_s is not None:
+        avoidance = scenario.avoidance.model_copy(update={"max_speed_m_s": max_speed_m_s})
+        scenario = scenario.model_copy(update={"avoidance": avoidance})
+    run = prepare(scenario, seed)
     return run, run.run()
 
 
