@@ -132,3 +132,117 @@ def test_a_bad_frames_csv_is_one_line_naming_file_and_line(
     assert main(args) == 1
     errors = [r.getMessage() for r in caplog.records if r.levelname == "ERROR"]
     assert len(errors) == 1 and fragment in errors[0]
+
+
+def _line_of(text: str, needle: str) -> int:
+    """1-based line of the first occurrence of ``needle``."""
+    return text[: text.index(needle)].count("\n") + 1
+
+
+def _with(tmp_path: Path, old: str, new: str) -> tuple[Path, str]:
+    """The synthetic config with one piece of its text replaced (which must be there)."""
+    path = synthetic_config(
+        tmp_path,
+        "udpout:127.0.0.1:14550",
+        sections={"avoidance": {"enabled": False}},
+    )
+    text = path.read_text()
+    assert old in text, (old, text)
+    path.write_text(text.replace(old, new, 1))
+    return path, new
+
+
+@pytest.mark.parametrize(
+    ("old", "new", "key", "fragment"),
+    [
+        # No silent coercion.
+        ("system_id: 7", "system_id: '7'", "mavlink.system_id", "1 to 255 (no quotes), or auto"),
+        ("system_id: 7", "system_id: true", "mavlink.system_id", "1 to 255 (no quotes), or auto"),
+        ("version: 1", "version: 1.0", "version", "whole number"),
+        ("version: 1", "version: true", "version", "whole number"),
+        ("fps: 15", "fps: '15'", "heads[0].source.fps", "valid number"),
+        ("seed: 3", "seed: 3.0", "heads[0].source.seed", "valid integer"),
+        ("enabled: false", "enabled: 0", "avoidance.enabled", "valid boolean"),
+        ("rate_hz: 15.0", "rate_hz: true", "mavlink.obstacle_distance.rate_hz", "valid number"),
+        ("max_age_ms: 400", "max_age_ms: '400'", "pipeline.max_age_ms", "valid integer"),
+        # Sane ranges.
+        ("log_interval_s: 1.0", "log_interval_s: 1.0e-06", "pipeline.log_interval_s", "0.5"),
+        ("fps: 15", "fps: 1.0e-300", "heads[0].source.fps", "0.1"),
+        ("fps: 15", "fps: 1.0e+300", "heads[0].source.fps", "240"),
+        ("fps: 15", "fps: .inf", "heads[0].source.fps", "finite number"),
+        ("system_id: 7", "system_id: 7\n  heartbeat_hz: 1.0e-300", "mavlink.heartbeat_hz", "0.5"),
+        (
+            "system_id: 7",
+            "system_id: 7\n  streams: {attitude_hz: 1.0e-9}",
+            "mavlink.streams.attitude_hz",
+            "0 (not asked) or from 0.1 to 1000 Hz",
+        ),
+    ],
+)
+def test_values_are_never_coerced_and_stay_in_sane_ranges(
+    tmp_path: Path,
+    capsys: pytest.CaptureFixture[str],
+    old: str,
+    new: str,
+    key: str,
+    fragment: str,
+) -> None:
+    path, needle = _with(tmp_path, old, new)
+    code, lines = _check(path, capsys)
+    assert code == 2
+    line = _line_of(path.read_text(), needle.split("\n")[-1].strip().split(":")[0])
+    _one_line(lines, f"{path}:{line}: {key}: ", fragment)
+
+
+def test_v4l2_back_off_limits_must_be_in_order(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    source = {
+        "kind": "v4l2",
+        "devices": ["/dev/video0"],
+        "width": 320,
+        "height": 240,
+        "reopen_min_s": 5.0,
+        "reopen_max_s": 1.0,
+    }
+    path = synthetic_config(tmp_path, "udpout:127.0.0.1:14550", source=source)
+    code, lines = _check(path, capsys)
+    assert code == 2
+    line = _line_of(path.read_text(), "source:")
+    _one_line(
+        lines,
+        f"{path}:{line}: heads[0].source: reopen_min_s (5 s) is above reopen_max_s (1 s)",
+        "swap them",
+    )
+
+
+def test_an_infinite_focal_length_names_the_calibration_file_line_and_key(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    path = synthetic_config(tmp_path, "udpout:127.0.0.1:14550")
+    calibration = tmp_path / "calib.yaml"
+    text = calibration.read_text().replace("fx: 200.0", "fx: .inf")
+    calibration.write_text(text)
+    code, lines = _check(path, capsys)
+    assert code == 2
+    line = _line_of(text, "fx:")
+    _one_line(lines, f"{calibration}:{line}: rectified.fx: ", "finite number")
+
+
+def test_files_path_that_is_neither_a_folder_of_pairs_nor_a_video_is_refused(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    import os
+
+    (tmp_path / "notes.txt").write_text("not a video\n")
+    (tmp_path / "empty").mkdir()
+    os.mkfifo(tmp_path / "pipe")
+    for name, fragment in [
+        ("notes.txt", "cannot open the video"),
+        ("empty", "expected 'left/' and 'right/' folders"),
+        ("pipe", "neither a folder nor a regular file"),
+    ]:
+        config = _config(tmp_path, {"kind": "files", "path": name}, mavlink=True)
+        code, lines = _check(config, capsys)
+        assert code == 2
+        _one_line(lines, "heads.front.source.path", f"{tmp_path / name}: {fragment}")

@@ -6,6 +6,7 @@ import csv
 import io
 import logging
 import math
+import os
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -304,10 +305,17 @@ def open_files(
         The source.
 
     Raises:
-        SourceError: The path is neither.
+        SourceError: The path is neither, or cannot be read.
     """
+    if not path.exists():
+        raise SourceError(f"{path}: not found; give a folder with left/ and right/ or a video file")
+    if not (path.is_dir() or path.is_file()):
+        raise SourceError(
+            f"{path}: neither a folder nor a regular file (a device, pipe or socket); give a "
+            "folder with left/ and right/ or a video file"
+        )
+    if not os.access(path, os.R_OK | (os.X_OK if path.is_dir() else 0)):
+        raise SourceError(f"{path}: not readable by this user; check its permissions")
     if path.is_dir():
         return FolderSource(path, fps, paced, loop)
-    if path.is_file():
-        return SideBySideVideoSource(path, fps, paced, loop)
-    raise SourceError(f"{path}: not found; give a folder with left/ and right/ or a video file")
+    return SideBySideVideoSource(path, fps, paced, loop)
