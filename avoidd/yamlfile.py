@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import difflib
+import re
 import types
 import typing
 from dataclasses import dataclass
@@ -45,7 +46,11 @@ MAX_NODES = 100_000
 
 
 class _BoundedLoader(yaml.SafeLoader):
-    """PyYAML's safe loader with its nesting bounded and value errors tied to their line."""
+    """PyYAML's safe loader with its nesting bounded and value errors tied to their line.
+
+    It also reads ``1e-3`` as a number, as YAML 1.2 does (YAML 1.1 wants ``1.0e-3``, and the
+    config refuses strings for numbers).
+    """
 
     def __init__(self, text: str, path: Path) -> None:
         super().__init__(text)
@@ -77,6 +82,13 @@ class _BoundedLoader(yaml.SafeLoader):
             raise ConfigError(
                 [f"{self._path}:{line}: cannot read the value {_short(node)} ({reason}); fix it"]
             ) from None
+
+
+_BoundedLoader.add_implicit_resolver(
+    "tag:yaml.org,2002:float",
+    re.compile(r"^[-+]?[0-9][0-9_]*(?:\.[0-9_]*)?[eE][-+]?[0-9]+$"),
+    list("-+0123456789"),
+)
 
 
 def _short(node: yaml.Node) -> str:

@@ -166,7 +166,9 @@ def _with(tmp_path: Path, old: str, new: str) -> tuple[Path, str]:
         ("rate_hz: 15.0", "rate_hz: true", "mavlink.obstacle_distance.rate_hz", "valid number"),
         ("max_age_ms: 400", "max_age_ms: '400'", "pipeline.max_age_ms", "valid integer"),
         # Sane ranges.
-        ("log_interval_s: 1.0", "log_interval_s: 1.0e-06", "pipeline.log_interval_s", "0.5"),
+        # (1e-6 is a number, as in YAML 1.2, not the string YAML 1.1 makes of it)
+        ("log_interval_s: 1.0", "log_interval_s: 1e-6", "pipeline.log_interval_s", "0.5"),
+        ("fps: 15", "fps: 1e-300", "heads[0].source.fps", "greater than or equal to 0.1"),
         ("fps: 15", "fps: 1.0e-300", "heads[0].source.fps", "0.1"),
         ("fps: 15", "fps: 1.0e+300", "heads[0].source.fps", "240"),
         ("fps: 15", "fps: .inf", "heads[0].source.fps", "finite number"),
@@ -246,3 +248,13 @@ def test_files_path_that_is_neither_a_folder_of_pairs_nor_a_video_is_refused(
         code, lines = _check(config, capsys)
         assert code == 2
         _one_line(lines, "heads.front.source.path", f"{tmp_path / name}: {fragment}")
+
+
+def test_numbers_with_an_exponent_and_no_dot_are_numbers(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    path, _ = _with(tmp_path, "fps: 15", "fps: 1.5e1")
+    text = path.read_text().replace("log_interval_s: 1.0", "log_interval_s: 2e0")
+    path.write_text(text)
+    code, _ = _check(path, capsys)
+    assert code == 0
