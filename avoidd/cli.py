@@ -55,7 +55,11 @@ def main(argv: Sequence[str] | None = None) -> int:
         The exit code: 0 ok, 1 runtime failure, 2 configuration error.
     """
     argv = list(sys.argv[1:] if argv is None else argv)
-    args = build_parser(chosen_command(argv)).parse_args(argv)
+    try:
+        # Ctrl-C while the command's modules load is no error either.
+        args = build_parser(chosen_command(argv)).parse_args(argv)
+    except KeyboardInterrupt:
+        return EXIT_OK
     _setup_logging(args.log_level)
     try:
         code: int = args.handler(args)

@@ -10,7 +10,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import IO, Any
 
-from avoidd.config import AppConfig, HeadConfig, HistogramConfig
+from avoidd.config import AppConfig, FilesSourceConfig, HeadConfig, HistogramConfig
 from avoidd.errors import BrokenFrame, ConfigError, SourceExhausted
 from avoidd.mavlink.codec import Codec
 from avoidd.mavlink.messages import sectors_to_cm
@@ -31,6 +31,7 @@ class ReplaySummary:
     """Totals of a replay run.
 
     Attributes:
+        source: What was read (the source's description).
         frames: Frames processed.
         dropped: Frames dropped as broken.
         stage_ms: Mean milliseconds per stage.
@@ -38,6 +39,7 @@ class ReplaySummary:
         bin_matches: Per frame, whether the nearest bin is the truth's bin.
     """
 
+    source: str = ""
     frames: int = 0
     dropped: int = 0
     stage_ms: dict[str, float] = field(default_factory=dict)
@@ -94,6 +96,9 @@ def replay(
         input_path: A folder or side-by-side video to read instead of the configured source.
         max_frames: Stop after this many frames.
 
+    A recorded source is read once, even when its config says ``loop`` (the daemon's
+    playback setting): a replay ends.
+
     Returns:
         Totals of the run.
     """
@@ -101,11 +106,14 @@ def replay(
     pipeline = HeadPipeline(head, calibration, od.max_distance_cm / 100.0, config.perception)
     temporal = SectorFilter(config.perception.temporal)
     codec = Codec(config.mavlink.fixed_system_id or 1, config.mavlink.component_id)
+    config_source = head.source
+    if isinstance(config_source, FilesSourceConfig) and config_source.loop:
+        config_source = config_source.model_copy(update={"loop": False})
     source = open_source(
-        head.source, calibration.rig, head.name, paced=False, input_path=input_path
+        config_source, calibration.rig, head.name, paced=False, input_path=input_path
     )
     min_cm, max_cm = od.range_cm(pipeline.min_range_m)
-    summary = ReplaySummary()
+    summary = ReplaySummary(source=source.description)
     totals: dict[str, list[float]] = {stage: [] for stage in (*STAGES, "encode")}
     try:
         while max_frames is None or summary.frames < max_frames:

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import difflib
+import re
 import types
 import typing
 from dataclasses import dataclass
@@ -34,8 +35,136 @@ class YamlDocument:
     root: yaml.Node
 
 
+MAX_FILE_BYTES = 1_000_000
+"""A configuration, calibration, world or scenario file is a few kilobytes; more is refused
+before parsing."""
+MAX_DEPTH = 32
+"""Nesting deeper than this is refused (no file of ours nests more than 6 levels)."""
+MAX_NODES = 100_000
+"""Values a document may hold with every alias written out: aliases are fine, an alias bomb
+("billion laughs", a kilobyte that expands to 10**9 values) is not."""
+
+
+class _BoundedLoader(yaml.SafeLoader):
+    """PyYAML's safe loader with its nesting bounded and value errors tied to their line.
+
+    It also reads ``1e-3`` as a number, as YAML 1.2 does (YAML 1.1 wants ``1.0e-3``, and the
+    config refuses strings for numbers).
+    """
+
+    def __init__(self, text: str, path: Path) -> None:
+        super().__init__(text)
+        self._path = path
+        self._depth = 0
+
+    def compose_node(self, parent: yaml.Node | None, index: Any) -> yaml.Node | None:
+        self._depth += 1
+        try:
+            if self._depth > MAX_DEPTH:
+                line = self.peek_event().start_mark.line + 1  # type: ignore[no-untyped-call]
+                raise ConfigError(
+                    [
+                        f"{self._path}:{line}: nested more than {MAX_DEPTH} levels deep; is it "
+                        "the right file?"
+                    ]
+                )
+            return super().compose_node(parent, index)
+        finally:
+            self._depth -= 1
+
+    def construct_object(self, node: yaml.Node, deep: bool = False) -> Any:
+        try:
+            return super().construct_object(node, deep)
+        except (ValueError, OverflowError) as exc:
+            # int() of a 5000-digit number, a 13th month in a date...
+            line = node.start_mark.line + 1
+            reason = str(exc).split(";")[0]
+            raise ConfigError(
+                [f"{self._path}:{line}: cannot read the value {_short(node)} ({reason}); fix it"]
+            ) from None
+
+
+_BoundedLoader.add_implicit_resolver(
+    "tag:yaml.org,2002:float",
+    re.compile(r"^[-+]?[0-9][0-9_]*(?:\.[0-9_]*)?[eE][-+]?[0-9]+$"),
+    list("-+0123456789"),
+)
+
+
+def _short(node: yaml.Node) -> str:
+    text = repr(node.value) if isinstance(node, yaml.ScalarNode) else "here"
+    return text if len(text) <= 40 else text[:37] + "..."
+
+
+def _check_expansion(path: Path, root: yaml.Node) -> None:
+    """Refuse a document that expands beyond ``MAX_NODES`` values, or refers to itself."""
+    sizes: dict[int, int] = {}
+    open_nodes: set[int] = set()
+
+    def size(node: yaml.Node) -> int:
+        key = id(node)
+        if key in sizes:
+            return sizes[key]
+        if key in open_nodes:
+            line = node.start_mark.line + 1
+            raise ConfigError(
+                [f"{path}:{line}: an alias refers to the node that contains it; remove the cycle"]
+            )
+        open_nodes.add(key)
+        if isinstance(node, yaml.SequenceNode):
+            children: list[yaml.Node] = list(node.value)
+        elif isinstance(node, yaml.MappingNode):
+            children = [part for pair in node.value for part in pair]
+        else:
+            children = []
+        total = 1
+        for child in children:
+            total += size(child)
+            if total > MAX_NODES:
+                raise ConfigError(
+                    [
+                        f"{path}:{root.start_mark.line + 1}: the document expands to more than "
+                        f"{MAX_NODES} values through its aliases (an alias bomb?); write it out "
+                        "or use fewer aliases"
+                    ]
+                )
+        open_nodes.discard(key)
+        sizes[key] = total
+        return total
+
+    size(root)
+
+
+def _read_text(path: Path) -> str:
+    """The file as text: bounded in size, UTF-8, errors naming the file (and line)."""
+    try:
+        with path.open("rb") as handle:
+            data = handle.read(MAX_FILE_BYTES + 1)
+    except OSError as exc:
+        reason = exc.strerror or str(exc)
+        raise ConfigError([f"{path}: cannot read the file ({reason}); check the path"]) from exc
+    if len(data) > MAX_FILE_BYTES:
+        raise ConfigError(
+            [
+                f"{path}: larger than {MAX_FILE_BYTES // 1_000_000} MB, too large for a YAML "
+                "file of avoidd; is it the right file?"
+            ]
+        )
+    try:
+        return data.decode("utf-8")
+    except UnicodeDecodeError as exc:
+        line = data[: exc.start].count(b"\n") + 1
+        raise ConfigError(
+            [f"{path}:{line}: byte 0x{data[exc.start]:02x} is not UTF-8; save the file as UTF-8"]
+        ) from None
+
+
 def load_yaml(path: Path) -> YamlDocument:
     """Read a YAML file, rejecting syntax errors, several documents and duplicate keys.
+
+    Files over ``MAX_FILE_BYTES``, bytes that are not UTF-8, nesting deeper than
+    ``MAX_DEPTH`` and documents whose aliases expand to more than ``MAX_NODES`` values are
+    refused before anything is built from them.
 
     Args:
         path: The file to read.
@@ -46,16 +175,13 @@ def load_yaml(path: Path) -> YamlDocument:
     Raises:
         ConfigError: The file cannot be read or is not valid YAML.
     """
-    try:
-        text = path.read_text(encoding="utf-8")
-    except OSError as exc:
-        reason = exc.strerror or str(exc)
-        raise ConfigError([f"{path}: cannot read the file ({reason}); check the path"]) from exc
-    loader = yaml.SafeLoader(text)
+    text = _read_text(path)
+    loader = _BoundedLoader(text, path)
     try:
         root = loader.get_single_node()
         if root is None:
             raise ConfigError([f"{path}:1: the file is empty; it needs at least 'version: 1'"])
+        _check_expansion(path, root)
         problems = _duplicate_keys(path, root)
         if problems:
             raise ConfigError(problems)

@@ -126,13 +126,13 @@ def test_shipped_configs_validate(name: str) -> None:
         (
             "fps: 15",
             "fps: fast",
-            "avoidd.yaml:7: heads[0].source.fps: Input should be a valid number, "
-            "unable to parse string as a number (got 'fast')",
+            "avoidd.yaml:7: heads[0].source.fps: Input should be a valid number (got 'fast')",
         ),
         (
             "fps: 15",
             "fps: 0",
-            "avoidd.yaml:7: heads[0].source.fps: Input should be greater than 0 (got 0)",
+            "avoidd.yaml:7: heads[0].source.fps: Input should be greater than or equal to 0.1 "
+            "(got 0)",
         ),
         (
             "udpout:127.0.0.1:14550",

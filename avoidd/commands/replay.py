@@ -6,7 +6,7 @@ import argparse
 from pathlib import Path
 
 from avoidd.commands import EXIT_OK
-from avoidd.errors import ConfigError
+from avoidd.errors import ConfigError, SourceError
 from avoidd.loading import load_all
 from avoidd.replay import format_summary, replay, select_head
 
@@ -24,7 +24,14 @@ def configure(name: str, parser: argparse.ArgumentParser) -> None:
 
 
 def run_replay(args: argparse.Namespace) -> int:
-    """Replay one head and print the summary."""
+    """Replay one head and print the summary.
+
+    Raises:
+        ConfigError: A bad argument or configuration (exit 2).
+        SourceError: No frame could be processed (exit 1), with the reason.
+    """
+    if args.max_frames is not None and args.max_frames < 1:
+        raise ConfigError([f"--max-frames {args.max_frames}: give 1 or more, or leave it out"])
     config, calibrations = load_all(args.config, input_given=args.input is not None)
     head = select_head(config, args.head)
     if args.input is not None and not args.input.exists():
@@ -34,4 +41,11 @@ def run_replay(args: argparse.Namespace) -> int:
         summary = replay(config, calibrations[head.name], head, out, args.input, args.max_frames)
     print(format_summary(summary))
     print(f"wrote {summary.frames} lines to {args.out}")
+    if summary.frames == 0:
+        reason = (
+            f"all {summary.dropped} frames were unusable (see the warnings above)"
+            if summary.dropped
+            else "it delivered no frame (an empty or unreadable video?)"
+        )
+        raise SourceError(f"replay: no frame processed from {summary.source}: {reason}")
     return EXIT_OK

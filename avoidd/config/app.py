@@ -3,12 +3,12 @@
 from __future__ import annotations
 
 from pathlib import Path
-from typing import Literal
+from typing import Annotated, Literal
 
 from pydantic import Field, field_validator
 
 from avoidd.config.avoidance import AvoidanceConfig
-from avoidd.config.base import Strict
+from avoidd.config.base import Strict, WholeNumber
 from avoidd.config.head import HeadConfig
 from avoidd.config.mavlink import MavlinkConfig
 from avoidd.config.perception import PerceptionConfig
@@ -21,17 +21,17 @@ class PipelineConfig(Strict):
     Attributes:
         max_age_ms: A scan older than this (from capture to send) is never sent; every bin goes
             out as unknown instead.
-        log_interval_s: Period of the one-line status log.
+        log_interval_s: Period of the one-line status log (0.5 s to an hour).
     """
 
     max_age_ms: int = Field(300, ge=20, le=5000)
-    log_interval_s: float = Field(5.0, gt=0.0)
+    log_interval_s: float = Field(5.0, ge=0.5, le=3600.0)
 
 
 class AppConfig(Strict):
     """The whole configuration file."""
 
-    version: Literal[1]
+    version: Annotated[Literal[1], WholeNumber]
     heads: list[HeadConfig] = Field(min_length=1, max_length=8)
     mavlink: MavlinkConfig = MavlinkConfig()
     pipeline: PipelineConfig = PipelineConfig()

@@ -3,11 +3,11 @@
 from __future__ import annotations
 
 from pathlib import Path
-from typing import Literal
+from typing import Annotated, Literal
 
 from pydantic import Field
 
-from avoidd.config.base import Strict
+from avoidd.config.base import Lax, Strict
 
 
 class GoalConfig(Strict):
@@ -72,4 +72,4 @@ class AvoidanceConfig(Strict):
     px4_prestream: bool = True
     follow_mission: bool = False
     goal: GoalConfig | None = None
-    params_file: Path | None = None
+    params_file: Annotated[Path, Lax] | None = None

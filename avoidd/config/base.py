@@ -5,7 +5,8 @@ from __future__ import annotations
 from pathlib import Path
 from typing import Annotated
 
-from pydantic import AfterValidator, BaseModel, ConfigDict, ValidationInfo
+from pydantic import AfterValidator, BaseModel, BeforeValidator, ConfigDict, ValidationInfo
+from pydantic import Strict as StrictMode
 
 
 class Strict(BaseModel):
@@ -13,9 +14,30 @@ class Strict(BaseModel):
 
     NaN and infinity are refused everywhere: no physical quantity in a configuration is
     either, and one that slipped through (a NaN mount position) made every bin read clear.
+    Values are never converted (pydantic strict mode): ``system_id: "7"`` or ``true``,
+    ``fps: "15"``, ``enabled: 1`` are errors, not 7, 15.0 and True; a whole number is fine
+    where a decimal one is asked for. Paths and tuples, which YAML cannot spell, are the
+    exceptions (see ``Lax``).
     """
 
-    model_config = ConfigDict(frozen=True, extra="forbid", allow_inf_nan=False)
+    model_config = ConfigDict(frozen=True, extra="forbid", allow_inf_nan=False, strict=True)
+
+
+Lax = StrictMode(False)
+"""Annotation for what YAML cannot spell as such: a path (a string) and a tuple (a list).
+The items of a lax tuple stay strict."""
+
+
+def _whole_number(value: object) -> object:
+    # A Literal of numbers takes 1.0 and true for 1, even in strict mode.
+    if isinstance(value, bool) or not isinstance(value, int):
+        raise ValueError("must be a whole number, written without quotes or a decimal point")
+    return value
+
+
+WholeNumber = BeforeValidator(_whole_number)
+"""Annotation for a Literal of whole numbers (``version``, window sizes): refuses 1.0 and
+true where 1 is meant."""
 
 
 def _resolve_path(value: Path, info: ValidationInfo) -> Path:
@@ -26,7 +48,7 @@ def _resolve_path(value: Path, info: ValidationInfo) -> Path:
     return path
 
 
-ConfigPath = Annotated[Path, AfterValidator(_resolve_path)]
+ConfigPath = Annotated[Path, Lax, AfterValidator(_resolve_path)]
 """A path in the config; relative paths are relative to the config file's folder."""
 
 

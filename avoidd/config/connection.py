@@ -31,9 +31,9 @@ class LinkSpec:
     """Where a MAVLink link goes.
 
     Attributes:
-        kind: ``udpout`` (send to host:port), ``udpin`` (listen on host:port, answer the last
-            sender), ``tcp`` (client to host:port), ``tcpin`` (server on host:port, one client at a
-            time) or ``serial``.
+        kind: ``udpout`` (send to host:port), ``udpin`` (listen on host:port; avoidd's link
+            answers the autopilot once heard, see ``avoidd.mavlink.link``), ``tcp`` (client to
+            host:port), ``tcpin`` (server on host:port, one client at a time) or ``serial``.
         host: Host name or address for network links.
         port: Port for network links.
         device: Device path for serial links.

@@ -7,7 +7,7 @@ from typing import Annotated
 
 from pydantic import AfterValidator, Field, field_validator
 
-from avoidd.config.base import ConfigPath, Strict, _existing_file
+from avoidd.config.base import ConfigPath, Lax, Strict, _existing_file
 from avoidd.config.sources import SourceConfig
 from avoidd.config.stereo import (
     HistogramConfig,
@@ -26,10 +26,13 @@ class MountConfig(Strict):
     yaw_deg: float = Field(0.0, ge=-180.0, le=360.0)
     pitch_deg: float = Field(0.0, ge=-90.0, le=90.0)
     roll_deg: float = Field(0.0, ge=-180.0, le=180.0)
-    position_m: tuple[
-        Annotated[float, Field(ge=-5.0, le=5.0)],
-        Annotated[float, Field(ge=-5.0, le=5.0)],
-        Annotated[float, Field(ge=-5.0, le=5.0)],
+    position_m: Annotated[
+        tuple[
+            Annotated[float, Field(ge=-5.0, le=5.0)],
+            Annotated[float, Field(ge=-5.0, le=5.0)],
+            Annotated[float, Field(ge=-5.0, le=5.0)],
+        ],
+        Lax,
     ] = (0.0, 0.0, 0.0)
     """Forward, right and down offset of the left camera from the body origin, each within
     5 m of it."""

@@ -41,6 +41,16 @@ class ObstacleDistanceConfig(Strict):
         return minimum, max(self.max_distance_cm, minimum + 1)
 
 
+def _off_or_rate(value: float) -> float:
+    if 0.0 < value < 0.1:
+        raise ValueError("a stream rate is 0 (not asked) or from 0.1 to 1000 Hz")
+    return value
+
+
+StreamRate = Annotated[float, Field(ge=0.0, le=1000.0), AfterValidator(_off_or_rate)]
+"""0 (not asked), or 0.1 to 1000 Hz."""
+
+
 class StreamsConfig(Strict):
     """Rates at which avoidd asks the autopilot for vehicle state (0 = do not ask).
 
@@ -48,10 +58,10 @@ class StreamsConfig(Strict):
     whenever the link comes back (an autopilot forgets requested intervals when it reboots).
     """
 
-    attitude_hz: float = Field(50.0, ge=0.0, le=1000.0)
-    local_position_hz: float = Field(10.0, ge=0.0, le=1000.0)
-    distance_sensor_hz: float = Field(10.0, ge=0.0, le=1000.0)
-    system_time_hz: float = Field(1.0, ge=0.0, le=1000.0)
+    attitude_hz: StreamRate = 50.0
+    local_position_hz: StreamRate = 10.0
+    distance_sensor_hz: StreamRate = 10.0
+    system_time_hz: StreamRate = 1.0
 
 
 def _known_message(value: str) -> str:
@@ -130,6 +140,8 @@ class MavlinkConfig(Strict):
         system_id: The vehicle's system id, or "auto" to learn it from the first autopilot
             heartbeat (avoidd uses 1 until then). Messages of other systems are ignored.
         autopilot_component_id: Component id of the autopilot (1).
+        heartbeat_hz: avoidd's own HEARTBEAT rate (0.5 to 10 Hz; autopilots and ground
+            stations expect 1 Hz).
         link_timeout_s: The link is down when no autopilot heartbeat came for this long.
     """
 
@@ -137,7 +149,7 @@ class MavlinkConfig(Strict):
     system_id: int | Literal["auto"] = "auto"
     component_id: int = Field(196, ge=1, le=255)
     autopilot_component_id: int = Field(1, ge=1, le=255)
-    heartbeat_hz: float = Field(1.0, gt=0.0, le=10.0)
+    heartbeat_hz: float = Field(1.0, ge=0.5, le=10.0)
     link_timeout_s: float = Field(3.0, ge=0.5, le=60.0)
     obstacle_distance: ObstacleDistanceConfig = ObstacleDistanceConfig()
     distance_sensor: DistanceSensorConfig = DistanceSensorConfig()
@@ -145,12 +157,15 @@ class MavlinkConfig(Strict):
     streams: StreamsConfig = StreamsConfig()
     signing: SigningConfig | None = None
 
-    @field_validator("system_id")
+    @field_validator("system_id", mode="before")
     @classmethod
-    def _system_id(cls, value: int | str) -> int | str:
-        if isinstance(value, int) and not 1 <= value <= 255:
-            raise ValueError("a system id is 1 to 255, or auto")
-        return value
+    def _system_id(cls, value: object) -> object:
+        # One clear line instead of one per member of the union; "7" and true are refused.
+        if value == "auto":
+            return value
+        if isinstance(value, int) and not isinstance(value, bool) and 1 <= value <= 255:
+            return value
+        raise ValueError("a system id is a number from 1 to 255 (no quotes), or auto")
 
     @field_validator("connection")
     @classmethod

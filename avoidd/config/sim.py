@@ -12,7 +12,7 @@ from typing import Annotated, Literal
 from pydantic import AfterValidator, Field, model_validator
 
 from avoidd.config.avoidance import AvoidanceConfig
-from avoidd.config.base import ConfigPath, Strict, _existing_file
+from avoidd.config.base import ConfigPath, Lax, Strict, WholeNumber, _existing_file
 from avoidd.yamlfile import load_yaml, validate_document
 
 Metres = Annotated[float, Field(ge=-1000.0, le=1000.0)]
@@ -36,8 +36,8 @@ class WallConfig(Strict):
     """A wall between two points on the ground (a thin box)."""
 
     shape: Literal["wall"]
-    start_ne_m: tuple[Metres, Metres]
-    end_ne_m: tuple[Metres, Metres]
+    start_ne_m: Annotated[tuple[Metres, Metres], Lax]
+    end_ne_m: Annotated[tuple[Metres, Metres], Lax]
     thickness_m: float = Field(0.3, gt=0.0, le=20.0)
     height_m: float = Field(4.0, gt=0.0, le=200.0)
     textured: bool = True
@@ -72,7 +72,7 @@ class WorldConfig(Strict):
         treeline_m: Radius of a textured tree line around the origin (None: open horizon).
     """
 
-    version: Literal[1]
+    version: Annotated[Literal[1], WholeNumber]
     seed: int = Field(1, ge=0)
     obstacles: list[ObstacleConfig] = Field(default_factory=list)
     treeline_m: float | None = Field(60.0, gt=5.0, le=2000.0)
@@ -145,8 +145,8 @@ class PassConfig(Strict):
     """
 
     no_collision: bool = True
-    min_clearance_m: float | None = None
-    reach_goal_s: float | None = Field(None, gt=0.0)
+    min_clearance_m: float | None = Field(None, ge=0.0, le=100.0)
+    reach_goal_s: float | None = Field(None, gt=0.0, le=3600.0)
     end_state: Literal["arrived", "no path", "moving", "stale"] | None = None
     closest_approach_m: tuple[float, float] | None = None
 
@@ -171,18 +171,18 @@ class ScenarioConfig(Strict):
         passing: The pass criteria.
     """
 
-    version: Literal[1]
+    version: Annotated[Literal[1], WholeNumber]
     name: str = Field(min_length=1, max_length=80)
     world: Annotated[ConfigPath, AfterValidator(_existing_file)] | GeneratedWorldConfig
     autopilot: Literal["ardupilot", "px4"] = "ardupilot"
     start: PlacementConfig = PlacementConfig()
     goal: PlacementConfig | None = None
     duration_s: float = Field(60.0, gt=0.0, le=3600.0)
-    fps: float = Field(15.0, gt=0.0, le=60.0)
+    fps: float = Field(15.0, ge=0.1, le=60.0)
     resolution: Literal["320x240", "640x480"] = "320x240"
     perception: Literal["stereo", "oracle"] = "stereo"
     avoidance: AvoidanceConfig = AvoidanceConfig(enabled=True)
-    wind_m_s: tuple[float, float] = (0.0, 0.0)
+    wind_m_s: Annotated[tuple[float, float], Lax] = (0.0, 0.0)
     timeline: list[ActionConfig] = Field(default_factory=list)
     passing: PassConfig = Field(default_factory=PassConfig, alias="pass")
 

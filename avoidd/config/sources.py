@@ -4,7 +4,7 @@ from __future__ import annotations
 
 from typing import Annotated, Literal
 
-from pydantic import AfterValidator, Field, field_validator
+from pydantic import AfterValidator, Field, field_validator, model_validator
 
 from avoidd.config.base import ConfigPath, Strict, _existing_path
 
@@ -47,7 +47,7 @@ class SyntheticSourceConfig(Strict):
     """
 
     kind: Literal["synthetic"]
-    fps: float = Field(15.0, gt=0.0, le=240.0)
+    fps: float = Field(15.0, ge=0.1, le=240.0)
     seed: int = Field(1, ge=0)
     camera_height_m: float = Field(1.5, gt=0.05, le=100.0)
     camera_pitch_deg: float = Field(0.0, ge=-45.0, le=45.0)
@@ -55,8 +55,8 @@ class SyntheticSourceConfig(Strict):
     vehicle_pitch_deg: float = Field(0.0, ge=-45.0, le=45.0)
     noise_std: float = Field(1.5, ge=0.0, le=20.0)
     approach_speed_mps: float = Field(0.0, ge=0.0, le=30.0)
-    min_forward_m: float = Field(1.0, gt=0.0)
-    backdrop_m: float | None = Field(45.0, gt=1.0)
+    min_forward_m: float = Field(1.0, gt=0.0, le=200.0)
+    backdrop_m: float | None = Field(45.0, gt=1.0, le=10_000.0)
     obstacles: list[SyntheticObstacleConfig] = Field(default_factory=_default_obstacles)
 
 
@@ -65,21 +65,35 @@ class FilesSourceConfig(Strict):
 
     kind: Literal["files"]
     path: Annotated[ConfigPath, AfterValidator(_existing_path)]
-    fps: float | None = Field(None, gt=0.0, le=240.0)
+    fps: float | None = Field(None, ge=0.1, le=240.0)
     loop: bool = False
 
 
 class V4l2SourceConfig(Strict):
-    """Live cameras through V4L2: two devices (left, right) or one side-by-side device."""
+    """Live cameras through V4L2: two devices (left, right) or one side-by-side device.
+
+    A camera that fails is reopened after ``reopen_min_s``, the wait doubling up to
+    ``reopen_max_s``.
+    """
 
     kind: Literal["v4l2"]
     devices: list[str] = Field(min_length=1, max_length=2)
     width: int = Field(gt=0, le=8192)
     height: int = Field(gt=0, le=8192)
-    fps: float = Field(30.0, gt=0.0, le=480.0)
+    fps: float = Field(30.0, ge=0.1, le=480.0)
     fourcc: str | None = "MJPG"
-    reopen_min_s: float = Field(0.5, gt=0.0)
-    reopen_max_s: float = Field(10.0, gt=0.0)
+    reopen_min_s: float = Field(0.5, ge=0.05, le=60.0)
+    reopen_max_s: float = Field(10.0, ge=0.05, le=600.0)
+
+    @model_validator(mode="after")
+    def _backoff(self) -> V4l2SourceConfig:
+        if self.reopen_min_s > self.reopen_max_s:
+            raise ValueError(
+                f"reopen_min_s ({self.reopen_min_s:g} s) is above reopen_max_s "
+                f"({self.reopen_max_s:g} s): the back-off grows from the first to the second; "
+                "swap them or raise reopen_max_s"
+            )
+        return self
 
     @field_validator("fourcc")
     @classmethod

@@ -13,7 +13,7 @@ from pydantic import (
     model_validator,
 )
 
-from avoidd.config.base import Strict, _multiple_of_16, _odd
+from avoidd.config.base import Strict, WholeNumber, _multiple_of_16, _odd
 
 DisparityRange = Annotated[int, Field(ge=16, le=512), AfterValidator(_multiple_of_16)]
 """Width of a disparity search range: a multiple of 16 pixels."""
@@ -36,12 +36,12 @@ class SgbmConfig(Strict):
     min_disparity: int = Field(0, ge=-128, le=256)
     num_disparities: DisparityRange = 64
     block_size: Annotated[int, Field(ge=1, le=15), AfterValidator(_odd)] = 5
-    p1: int | None = Field(None, gt=0)
-    p2: int | None = Field(None, gt=0)
+    p1: int | None = Field(None, gt=0, le=1_000_000)
+    p2: int | None = Field(None, gt=0, le=1_000_000)
     uniqueness_ratio: int = Field(5, ge=0, le=100)
-    speckle_window_size: int = Field(100, ge=0)
-    speckle_range: int = Field(2, ge=0)
-    disp12_max_diff: int = Field(1, ge=-1)
+    speckle_window_size: int = Field(100, ge=0, le=1_000_000)
+    speckle_range: int = Field(2, ge=0, le=1000)
+    disp12_max_diff: int = Field(1, ge=-1, le=1000)
     pre_filter_cap: int = Field(63, ge=1, le=255)
     mode: Literal["sgbm", "hh", "sgbm_3way", "hh4"] = "sgbm_3way"
     pad_left: bool = True
@@ -67,11 +67,11 @@ class SadConfig(Strict):
     kind: Literal["sad"]
     num_disparities: DisparityRange = 64
     block_size: Annotated[int, Field(ge=5, le=51), AfterValidator(_odd)] = 11
-    texture_threshold: int = Field(10, ge=0)
+    texture_threshold: int = Field(10, ge=0, le=1_000_000)
     uniqueness_ratio: int = Field(15, ge=0, le=100)
-    speckle_window_size: int = Field(100, ge=0)
-    speckle_range: int = Field(2, ge=0)
-    disp12_max_diff: int = Field(1, ge=-1)
+    speckle_window_size: int = Field(100, ge=0, le=1_000_000)
+    speckle_range: int = Field(2, ge=0, le=1000)
+    disp12_max_diff: int = Field(1, ge=-1, le=1000)
     pre_filter: Literal["xsobel", "normalized_response"] = "xsobel"
     pad_left: bool = False
 
@@ -99,8 +99,8 @@ class CensusConfig(Strict):
     max_mean_distance: float = Field(0.35, gt=0.0, le=1.0)
     texture_window_px: Annotated[int, Field(ge=3, le=31), AfterValidator(_odd)] = 7
     min_texture_std: float = Field(1.0, ge=0.0)
-    lr_max_diff_px: int = Field(1, ge=0)
-    speckle_window_size: int = Field(100, ge=0)
+    lr_max_diff_px: int = Field(1, ge=0, le=256)
+    speckle_window_size: int = Field(100, ge=0, le=1_000_000)
 
 
 class SegmentConfig(Strict):
@@ -129,12 +129,12 @@ class SegmentConfig(Strict):
     num_disparities: DisparityRange = 64
     clusters: int = Field(8, ge=2, le=16)
     open_px: Annotated[int, Field(ge=1, le=15), AfterValidator(_odd)] = 3
-    min_region_px: int = Field(64, ge=1)
+    min_region_px: int = Field(64, ge=1, le=10_000_000)
     boundary_px: int = Field(2, ge=1, le=8)
     block_size: Annotated[int, Field(ge=5, le=51), AfterValidator(_odd)] = 9
-    texture_threshold: int = Field(10, ge=0)
+    texture_threshold: int = Field(10, ge=0, le=1_000_000)
     uniqueness_ratio: int = Field(15, ge=0, le=100)
-    min_boundary_px: int = Field(12, ge=3)
+    min_boundary_px: int = Field(12, ge=3, le=10_000_000)
     max_residual_px: float = Field(1.0, gt=0.0)
     pad_left: bool = True
 
@@ -212,7 +212,7 @@ class NearFieldConfig(Strict):
     """
 
     enabled: bool = True
-    scale: Literal[2, 4] = 4
+    scale: Annotated[Literal[2, 4], WholeNumber] = 4
     num_disparities: DisparityRange = 64
     block_size: Annotated[int, Field(ge=3, le=11), AfterValidator(_odd)] = 5
 
@@ -242,7 +242,7 @@ class PreprocessConfig(Strict):
     """
 
     resize_scale: float = Field(1.0, ge=0.25, le=1.0)
-    median_px: Literal[0, 3, 5, 7] = 0
+    median_px: Annotated[Literal[0, 3, 5, 7], WholeNumber] = 0
     mean_px: Annotated[int, Field(ge=0, le=15)] = 0
     texture: TextureConfig | None = None
 
@@ -281,8 +281,8 @@ class PostprocessConfig(Strict):
 
     subpixel_refine: bool = False
     refine_window_px: int = Field(7, ge=3, le=21)
-    median_size: Literal[0, 3, 5] = 5
-    speckle_window_px: int = Field(0, ge=0)
+    median_size: Annotated[Literal[0, 3, 5], WholeNumber] = 5
+    speckle_window_px: int = Field(0, ge=0, le=1_000_000)
     speckle_range_px: float = Field(1.0, gt=0.0)
     fill_holes: bool = False
     min_texture_snr: float = Field(1.5, ge=0.0, le=20.0)

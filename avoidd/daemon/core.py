@@ -43,7 +43,11 @@ def build_link(config: MavlinkConfig) -> MavLink:
     Returns:
         The link (not opened); the daemon enables signing on its codec if configured.
     """
-    return MavLink(config.link, mav.Codec(config.fixed_system_id or 1, config.component_id))
+    return MavLink(
+        config.link,
+        mav.Codec(config.fixed_system_id or 1, config.component_id),
+        autopilot_timeout_s=config.link_timeout_s,
+    )
 
 
 class Daemon:

@@ -280,19 +280,70 @@ class Codec:
         Bytes that do not form a valid message are counted in ``parse_errors``, and messages
         refused by signing in ``signature_rejects``; neither ever raises.
         """
-        messages: list[Message] = []
-        try:
-            parsed = self._mav.parse_buffer(bytes(data))
-        except Exception:
-            # Garbage on a link must never take the link down: count it and go on.
-            self.parse_errors += 1
-            return messages
-        for message in parsed or ():
-            if message.get_type() == "BAD_DATA":
-                if "signature" in str(getattr(message, "reason", "")).lower():
-                    self.signature_rejects += 1
-                else:
-                    self.parse_errors += 1
-            else:
-                messages.append(message)
+        messages, errors, rejects = _decode(self._mav, data)
+        self.parse_errors += errors
+        self.signature_rejects += rejects
         return messages
+
+    def parser(self) -> Parser:
+        """A decoder of its own for one more sender, checking signatures as this codec does."""
+        return Parser(self._mav.signing)
+
+
+class Parser:
+    """Decodes the bytes of one sender.
+
+    Its partial frame and its signed streams' timestamps are its own, so garbage from one
+    sender cannot swallow another's frames (as it does in a shared parser when it starts like
+    a MAVLink 2 frame), nor push another's signing timestamps forward.
+
+    Args:
+        signing: The codec's signing state: its key and allow-list are used as they are when
+            each chunk is decoded, and its timestamp follows the ones accepted here.
+
+    Attributes:
+        parse_errors: Bad chunks or frames.
+        signature_rejects: Messages refused for a missing or wrong signature.
+    """
+
+    def __init__(self, signing: Any) -> None:
+        self._shared = signing
+        self._mav = dialect.MAVLink(None)
+        self._mav.robust_parsing = True
+        self.parse_errors = 0
+        self.signature_rejects = 0
+
+    def decode(self, data: bytes) -> list[Message]:
+        """Decode every complete message in ``data``, as :meth:`Codec.decode` does."""
+        shared, own = self._shared, self._mav.signing
+        signed = shared.secret_key is not None
+        if signed:
+            own.secret_key = shared.secret_key
+            own.allow_unsigned_callback = shared.allow_unsigned_callback
+            own.timestamp = max(own.timestamp, shared.timestamp)
+        messages, errors, rejects = _decode(self._mav, data)
+        if signed:
+            shared.timestamp = max(shared.timestamp, own.timestamp)
+        self.parse_errors += errors
+        self.signature_rejects += rejects
+        return messages
+
+
+def _decode(parser: Any, data: bytes | Iterable[int]) -> tuple[list[Message], int, int]:
+    """Messages decoded by a pymavlink parser, and the counts of bad data and rejected ones."""
+    messages: list[Message] = []
+    try:
+        parsed = parser.parse_buffer(bytes(data))
+    except Exception:
+        # Garbage on a link must never take the link down: count it and go on.
+        return messages, 1, 0
+    errors = rejects = 0
+    for message in parsed or ():
+        if message.get_type() == "BAD_DATA":
+            if "signature" in str(getattr(message, "reason", "")).lower():
+                rejects += 1
+            else:
+                errors += 1
+        else:
+            messages.append(message)
+    return messages, errors, rejects

@@ -4,6 +4,12 @@ Everything here runs in the event loop. Messages are built anywhere in the loop 
 by the link's sender task, which owns the sequence counter and the signing timestamp.
 HEARTBEAT and STATUSTEXT jump the queue, so that health reaches the autopilot even when the link
 is saturated.
+
+Every sender (a UDP address; a stream has one) has a parser of its own. Once the vehicle tracker
+says which sender the autopilot speaks from (:meth:`MavLink.autopilot_spoke`), the link belongs
+to it, as a mavlink-router endpoint does: replies go there only, and what other senders send is
+counted and dropped. When the autopilot's address has been silent for the link timeout, the next
+sender is heard again, so an autopilot that restarted on a new port is found.
 """
 
 from __future__ import annotations
@@ -11,13 +17,14 @@ from __future__ import annotations
 import asyncio
 import logging
 import time
-from collections import Counter, deque
+from collections import Counter, OrderedDict, deque
 from collections.abc import Callable
+from dataclasses import dataclass
 
 from avoidd.aio import cancel_task
 from avoidd.config.connection import LinkSpec
-from avoidd.mavlink.codec import Codec, Message
-from avoidd.mavlink.transport import Transport, create_transport
+from avoidd.mavlink.codec import Codec, Message, Parser
+from avoidd.mavlink.transport import Sender, Transport, create_sender_transport
 
 logger = logging.getLogger(__name__)
 
@@ -25,6 +32,30 @@ URGENT_TYPES = frozenset({"HEARTBEAT", "STATUSTEXT"})
 
 Handler = Callable[[Message, int], None]
 """Called with every decoded message and its local monotonic receive time (ns)."""
+
+MAX_PARSERS = 16
+"""Senders with a parser of their own; the one unheard longest gives its parser up."""
+MAX_STRANGERS = 64
+"""Senders counted one by one; more are counted together under ``"others"``."""
+STRANGER_SUMMARY_S = 60.0
+"""At most one summary line about strangers per this many seconds."""
+
+
+@dataclass
+class StrangerCount:
+    """What one sender other than the autopilot sent (and the link dropped)."""
+
+    datagrams: int = 0
+    bytes: int = 0
+    messages: int = 0
+
+
+def sender_text(sender: Sender) -> str:
+    """A sender for logs: ``host:port`` (``[v6]:port``), or the stream for None."""
+    if sender is None:
+        return "the stream"
+    host, port = sender[0], sender[1]
+    return f"[{host}]:{port}" if ":" in str(host) else f"{host}:{port}"
 
 
 class MavLink:
@@ -34,17 +65,41 @@ class MavLink:
         spec: Where the link goes.
         codec: The link's codec (its ids and signing).
         queue_size: Messages waiting to be sent beyond which the oldest ordinary one is dropped.
+        autopilot_timeout_s: After this long without a byte from the autopilot's address,
+            another sender may become the autopilot (the ``link_timeout_s`` of the config).
+
+    Attributes:
+        autopilot_sender: Where the autopilot speaks from, once known.
+        strangers: What each other sender sent since then (bounded: see ``MAX_STRANGERS``).
     """
 
-    def __init__(self, spec: LinkSpec, codec: Codec, queue_size: int = 64) -> None:
+    def __init__(
+        self,
+        spec: LinkSpec,
+        codec: Codec,
+        queue_size: int = 64,
+        autopilot_timeout_s: float = 3.0,
+    ) -> None:
         self.spec = spec
         self.codec = codec
-        self.transport: Transport = create_transport(spec, self._on_bytes)
+        self.transport: Transport = create_sender_transport(spec, self._on_bytes)
         self.sent: Counter[str] = Counter()
         self.received: Counter[str] = Counter()
         self.dropped: Counter[str] = Counter()
         self.handler_errors = 0
         self.bytes_received = 0
+        self.autopilot_sender: Sender = None
+        self.strangers: dict[str, StrangerCount] = {}
+        self._locked = False
+        self._autopilot_heard_ns = 0
+        self._autopilot_timeout_ns = int(autopilot_timeout_s * 1e9)
+        self._handling: tuple[Sender] | None = None
+        self._parsers: OrderedDict[Sender, Parser] = OrderedDict()
+        self._parse_errors = 0
+        self._signature_rejects = 0
+        self._window = StrangerCount()
+        self._window_senders: set[str] = set()
+        self._summary_ns: int | None = None
         self._urgent: deque[Message] = deque()
         self._normal: deque[Message] = deque()
         self._queue_size = queue_size
@@ -59,13 +114,13 @@ class MavLink:
 
     @property
     def parse_errors(self) -> int:
-        """Bytes that did not decode, counted per bad chunk or frame."""
-        return self.codec.parse_errors
+        """Bytes that did not decode, counted per bad chunk or frame (strangers' left out)."""
+        return self._parse_errors
 
     @property
     def signature_rejects(self) -> int:
         """Incoming messages refused because their signature was missing or wrong."""
-        return self.codec.signature_rejects
+        return self._signature_rejects
 
     def subscribe(self, handler: Handler) -> None:
         """Call ``handler`` with every message decoded from now on."""
@@ -107,18 +162,129 @@ class MavLink:
                 else:
                     self.dropped[kind] += 1
 
-    def _on_bytes(self, data: bytes) -> None:
+    def _on_bytes(self, data: bytes, sender: Sender = None) -> None:
         received_ns = time.monotonic_ns()
+        if self._locked and sender != self.autopilot_sender:
+            if received_ns - self._autopilot_heard_ns <= self._autopilot_timeout_ns:
+                self._from_stranger(data, sender, received_ns)
+                return
+            self._locked = False
+            logger.warning(
+                "MAVLink %s: nothing from the autopilot at %s for %.1f s; listening to %s",
+                self.spec,
+                sender_text(self.autopilot_sender),
+                (received_ns - self._autopilot_heard_ns) / 1e9,
+                sender_text(sender),
+            )
+        elif self._locked:
+            self._autopilot_heard_ns = received_ns
         self.bytes_received += len(data)
-        for message in self.codec.decode(data):
-            self.received[message.get_type()] += 1
-            for handler in self._handlers:
-                try:
-                    handler(message, received_ns)
-                except Exception:
-                    # A handler bug must not take the link down; it is counted and logged.
-                    self.handler_errors += 1
-                    logger.exception("MAVLink %s: handler failed on %s", self.spec, message)
+        parser = self._parser(sender)
+        errors, rejects = parser.parse_errors, parser.signature_rejects
+        messages = parser.decode(data)
+        self._parse_errors += parser.parse_errors - errors
+        self._signature_rejects += parser.signature_rejects - rejects
+        if messages and not self._locked:
+            # Until the autopilot is known, answer whoever last sent a valid message (never
+            # the sender of garbage).
+            self.transport.reply_to(sender)
+        self._handling = (sender,)
+        try:
+            for message in messages:
+                self.received[message.get_type()] += 1
+                for handler in self._handlers:
+                    try:
+                        handler(message, received_ns)
+                    except Exception:
+                        # A handler bug must not take the link down; it is counted and logged.
+                        self.handler_errors += 1
+                        logger.exception("MAVLink %s: handler failed on %s", self.spec, message)
+        finally:
+            self._handling = None
+
+    def autopilot_spoke(self) -> None:
+        """The message being handled is the adopted autopilot's HEARTBEAT: the link is its.
+
+        Called by the vehicle tracker from its handler. From now on replies go to this sender
+        only, and other senders are counted and dropped.
+        """
+        if self._handling is None:
+            return
+        (sender,) = self._handling
+        self._autopilot_heard_ns = time.monotonic_ns()
+        if self._locked and sender == self.autopilot_sender:
+            return
+        if sender is not None:
+            if self.autopilot_sender is None:
+                logger.info(
+                    "MAVLink %s: the autopilot speaks from %s", self.spec, sender_text(sender)
+                )
+            elif sender != self.autopilot_sender:
+                logger.warning(
+                    "MAVLink %s: the autopilot now speaks from %s (was %s)",
+                    self.spec,
+                    sender_text(sender),
+                    sender_text(self.autopilot_sender),
+                )
+        self._locked = True
+        self.autopilot_sender = sender
+        self.transport.reply_to(sender)
+
+    def _parser(self, sender: Sender) -> Parser:
+        parser = self._parsers.get(sender)
+        if parser is None:
+            if len(self._parsers) >= MAX_PARSERS:
+                self._parsers.popitem(last=False)
+            parser = self._parsers[sender] = self.codec.parser()
+        else:
+            self._parsers.move_to_end(sender)
+        return parser
+
+    def _from_stranger(self, data: bytes, sender: Sender, now_ns: int) -> None:
+        """Count (and drop) what a sender other than the autopilot sent; log it sparingly."""
+        name = sender_text(sender)
+        count = self.strangers.get(name)
+        if count is None:
+            if len(self.strangers) < MAX_STRANGERS:
+                count = self.strangers[name] = StrangerCount()
+                logger.warning(
+                    "MAVLink %s: %s is not the autopilot (%s); what it sends is ignored and "
+                    "nothing is sent to it",
+                    self.spec,
+                    name,
+                    sender_text(self.autopilot_sender),
+                )
+            else:
+                count = self.strangers.setdefault("others", StrangerCount())
+        messages = len(self._parser(sender).decode(data))
+        for tally in (count, self._window):
+            tally.datagrams += 1
+            tally.bytes += len(data)
+            tally.messages += messages
+        if len(self._window_senders) < 4 * MAX_STRANGERS:
+            self._window_senders.add(name)
+        if self._summary_ns is None:
+            self._summary_ns = now_ns
+        elif now_ns - self._summary_ns >= STRANGER_SUMMARY_S * 1e9:
+            self._log_strangers(now_ns)
+
+    def _log_strangers(self, now_ns: int) -> None:
+        assert self._summary_ns is not None
+        window = self._window
+        logger.warning(
+            "MAVLink %s: ignored %d datagrams (%d bytes, %d messages) from %d%s strangers "
+            "in the last %.0f s",
+            self.spec,
+            window.datagrams,
+            window.bytes,
+            window.messages,
+            len(self._window_senders),
+            "+" if len(self._window_senders) >= 4 * MAX_STRANGERS else "",
+            (now_ns - self._summary_ns) / 1e9,
+        )
+        self._window = StrangerCount()
+        self._window_senders = set()
+        self._summary_ns = now_ns
 
     def counters(self) -> dict[str, object]:
         """Counters for logs and tests: sent/received/dropped by type and error counts."""
@@ -129,4 +295,5 @@ class MavLink:
             "parse_errors": self.parse_errors,
             "signature_rejects": self.signature_rejects,
             "handler_errors": self.handler_errors,
+            "strangers": {name: vars(count) for name, count in self.strangers.items()},
         }

@@ -15,6 +15,7 @@ import logging
 import math
 import os
 import pty
+import signal
 import time
 import tty
 from collections import Counter
@@ -402,11 +403,22 @@ class MockAutopilot:
 
 
 async def serve(autopilot: MockAutopilot, connection: str, duration_s: float | None) -> None:
-    """Run a mock autopilot until cancelled or for ``duration_s``, then log what it heard."""
+    """Run a mock autopilot until SIGINT or SIGTERM, cancelled, or for ``duration_s``.
+
+    However it ends, it stops cleanly and logs what it heard.
+    """
     try:
         await autopilot.start(connection)
     except (LinkError, OSError) as exc:
         raise LinkError(f"mock autopilot on {connection}: {exc}") from exc
+    stop = asyncio.Event()
+    loop = asyncio.get_running_loop()
+    handled = []
+    for signum in (signal.SIGINT, signal.SIGTERM):
+        # Only the main thread may handle signals; elsewhere cancellation stops it.
+        with contextlib.suppress(NotImplementedError, RuntimeError, ValueError):
+            loop.add_signal_handler(signum, stop.set)
+            handled.append(signum)
     logger.info(
         "mock %s autopilot, system %d, mode %s, on %s",
         autopilot.flavour,
@@ -415,10 +427,14 @@ async def serve(autopilot: MockAutopilot, connection: str, duration_s: float | N
         connection,
     )
     try:
-        if duration_s is None:
-            await asyncio.Event().wait()
-        else:
-            await asyncio.sleep(duration_s)
+        with contextlib.suppress(TimeoutError):
+            await asyncio.wait_for(stop.wait(), duration_s)
     finally:
+        for signum in handled:
+            loop.remove_signal_handler(signum)
         await autopilot.stop()
-        logger.info("mock autopilot heard %s", dict(autopilot.counts))
+        logger.info(
+            "mock autopilot stopped; heard %s, sent %s",
+            dict(autopilot.counts),
+            dict(autopilot.sent),
+        )

@@ -18,6 +18,11 @@ from avoidd.errors import LinkError
 logger = logging.getLogger(__name__)
 
 ReceiveCallback = Callable[[bytes], None]
+"""Called with every chunk of received bytes."""
+Sender = tuple[Any, ...] | None
+"""Where a datagram came from (the socket address); None on a stream (TCP, serial)."""
+SenderCallback = Callable[[bytes, Sender], None]
+"""Called with every chunk of received bytes and its sender."""
 
 _MAX_WRITE_BUFFER = 64 * 1024
 
@@ -38,6 +43,10 @@ class Transport(Protocol):
         """Queue bytes for sending."""
         ...
 
+    def reply_to(self, sender: Sender) -> None:
+        """Send to ``sender`` from now on (``udpin`` only; other transports have one peer)."""
+        ...
+
     async def close(self) -> None:
         """Stop and release everything."""
         ...
@@ -56,9 +65,19 @@ class _Datagram(asyncio.DatagramProtocol):
 
 
 class _UdpTransport:
-    def __init__(self, spec: LinkSpec, on_receive: ReceiveCallback) -> None:
+    """UDP out (to a fixed address) or in (listening).
+
+    Args:
+        spec: The link.
+        on_receive: Gets every datagram and its sender.
+        follow_sender: ``udpin`` answers whoever sent the last datagram; otherwise nobody
+            until :meth:`reply_to` names the peer.
+    """
+
+    def __init__(self, spec: LinkSpec, on_receive: SenderCallback, follow_sender: bool) -> None:
         self._spec = spec
         self._on_receive = on_receive
+        self._follow_sender = follow_sender
         self._transport: asyncio.DatagramTransport | None = None
         self._peer: Any = None
         self.send_errors = 0
@@ -74,9 +93,13 @@ class _UdpTransport:
         return int(self._transport.get_extra_info("sockname")[1])
 
     def datagram_received(self, data: bytes, addr: Any) -> None:
-        if self._spec.kind == "udpin":
+        if self._spec.kind == "udpin" and self._follow_sender:
             self._peer = addr
-        self._on_receive(data)
+        self._on_receive(data, addr)
+
+    def reply_to(self, sender: Sender) -> None:
+        if self._spec.kind == "udpin" and sender is not None:
+            self._peer = sender
 
     async def open(self) -> None:
         loop = asyncio.get_running_loop()
@@ -124,11 +147,11 @@ def _write_stream(writer: asyncio.StreamWriter | None, data: bytes) -> bool:
     return True
 
 
-async def _pump(reader: asyncio.StreamReader, on_receive: ReceiveCallback, spec: LinkSpec) -> None:
+async def _pump(reader: asyncio.StreamReader, on_receive: SenderCallback, spec: LinkSpec) -> None:
     """Hand every chunk read from a TCP stream to ``on_receive`` until it closes or fails."""
     try:
         while data := await reader.read(4096):
-            on_receive(data)
+            on_receive(data, None)
     except OSError as exc:
         logger.debug("MAVLink %s: read failed (%s)", spec, exc)
 
@@ -136,7 +159,7 @@ async def _pump(reader: asyncio.StreamReader, on_receive: ReceiveCallback, spec:
 class _TcpClient:
     """TCP client that keeps reconnecting with backoff while the peer is away."""
 
-    def __init__(self, spec: LinkSpec, on_receive: ReceiveCallback) -> None:
+    def __init__(self, spec: LinkSpec, on_receive: SenderCallback) -> None:
         self._spec = spec
         self._on_receive = on_receive
         self._writer: asyncio.StreamWriter | None = None
@@ -178,6 +201,9 @@ class _TcpClient:
     def send(self, data: bytes) -> bool:
         return _write_stream(self._writer, data)
 
+    def reply_to(self, sender: Sender) -> None:
+        """One peer: nothing to choose."""
+
     async def close(self) -> None:
         await cancel_task(self._task)
         self._task = None
@@ -198,7 +224,7 @@ class _Serial:
     reopened in the background with backoff; sends while it is away are dropped.
     """
 
-    def __init__(self, spec: LinkSpec, on_receive: ReceiveCallback) -> None:
+    def __init__(self, spec: LinkSpec, on_receive: SenderCallback) -> None:
         self._spec = spec
         self._on_receive = on_receive
         self._fd: int | None = None
@@ -268,7 +294,7 @@ class _Serial:
             self._drop()
             return
         if data:
-            self._on_receive(data)
+            self._on_receive(data, None)
         else:
             self._drop()
 
@@ -312,6 +338,9 @@ class _Serial:
         self._flush()
         return True
 
+    def reply_to(self, sender: Sender) -> None:
+        """One peer: nothing to choose."""
+
     async def close(self) -> None:
         await cancel_task(self._task)
         self._task = None
@@ -327,7 +356,7 @@ class _Serial:
 class _TcpServer:
     """A TCP server for one client at a time; a new client replaces the previous one."""
 
-    def __init__(self, spec: LinkSpec, on_receive: ReceiveCallback) -> None:
+    def __init__(self, spec: LinkSpec, on_receive: SenderCallback) -> None:
         self._spec = spec
         self._on_receive = on_receive
         self._server: asyncio.Server | None = None
@@ -370,6 +399,9 @@ class _TcpServer:
     def send(self, data: bytes) -> bool:
         return _write_stream(self._writer, data)
 
+    def reply_to(self, sender: Sender) -> None:
+        """One peer: nothing to choose."""
+
     async def close(self) -> None:
         if self._writer is not None:
             self._writer.close()
@@ -380,7 +412,7 @@ class _TcpServer:
 
 
 def create_transport(spec: LinkSpec, on_receive: ReceiveCallback) -> Transport:
-    """Build the transport a connection string asks for.
+    """Build the transport a connection string asks for (``udpin`` answers the last sender).
 
     Args:
         spec: The parsed connection string.
@@ -389,8 +421,29 @@ def create_transport(spec: LinkSpec, on_receive: ReceiveCallback) -> Transport:
     Returns:
         An unopened transport; call ``await transport.open()``.
     """
+    return _create(spec, lambda data, _sender: on_receive(data), follow_sender=True)
+
+
+def create_sender_transport(spec: LinkSpec, on_receive: SenderCallback) -> Transport:
+    """Build a transport that says who sent what, and answers only whom it is told to.
+
+    A ``udpin`` transport sends nothing until :meth:`Transport.reply_to` names the peer
+    (a datagram from a stranger never redirects avoidd's output).
+
+    Args:
+        spec: The parsed connection string.
+        on_receive: Called in the event loop with every chunk of received bytes and its
+            sender (the socket address for UDP, None for TCP and serial).
+
+    Returns:
+        An unopened transport; call ``await transport.open()``.
+    """
+    return _create(spec, on_receive, follow_sender=False)
+
+
+def _create(spec: LinkSpec, on_receive: SenderCallback, follow_sender: bool) -> Transport:
     if spec.kind in ("udpout", "udpin"):
-        return _UdpTransport(spec, on_receive)
+        return _UdpTransport(spec, on_receive, follow_sender)
     if spec.kind == "tcp":
         return _TcpClient(spec, on_receive)
     if spec.kind == "tcpin":

@@ -232,6 +232,7 @@ class Vehicle:
     def _on_heartbeat(self, message: mav.Message, received_ns: int) -> None:
         if not self._is_autopilot_heartbeat(message):
             return
+        self._link.autopilot_spoke()  # the link is the autopilot's: replies go where it speaks
         mode = decode_mode(message.autopilot, message.type, message.base_mode, message.custom_mode)
         if mode != self.mode:
             previous = self.mode

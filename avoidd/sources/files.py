@@ -3,8 +3,10 @@
 from __future__ import annotations
 
 import csv
+import io
 import logging
 import math
+import os
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -25,6 +27,8 @@ POSE_COLUMNS = ("roll_deg", "pitch_deg")
 """Optional ``frames.csv`` columns with the vehicle attitude at capture (both or neither)."""
 HEIGHT_COLUMN = "height_m"
 """Optional ``frames.csv`` column with the height above ground at capture."""
+MAX_T_CAPTURE_NS = 2**63 - 1
+"""Capture times are monotonic nanoseconds: 0 to the largest signed 64-bit number."""
 
 
 @dataclass(frozen=True)
@@ -61,6 +65,21 @@ def _pose(row: dict[str, str], has_height: bool, where: str) -> FramePose:
     )
 
 
+def _read_utf8(path: Path) -> str:
+    """A text file's content; bytes that are not UTF-8 are an error naming the line."""
+    try:
+        data = path.read_bytes()
+    except OSError as exc:
+        raise SourceError(f"{path}: cannot read ({exc.strerror or exc})") from exc
+    try:
+        return data.decode("utf-8")
+    except UnicodeDecodeError as exc:
+        line = data[: exc.start].count(b"\n") + 1
+        raise SourceError(
+            f"{path}:{line}: byte 0x{data[exc.start]:02x} is not UTF-8; save the file as UTF-8"
+        ) from None
+
+
 def _read_index(folder: Path, path: Path) -> list[_Pair]:
     """Pairs listed in ``frames.csv``.
 
@@ -68,12 +87,11 @@ def _read_index(folder: Path, path: Path) -> list[_Pair]:
     and ``pitch_deg`` (vehicle attitude at capture) and ``height_m`` (height above ground).
     """
     left_dir, right_dir = folder / "left", folder / "right"
-    with path.open(newline="", encoding="utf-8") as handle:
-        reader = csv.DictReader(handle)
-        fields = set(reader.fieldnames or ())
-        if "t_capture_ns" not in fields:
-            raise SourceError(f"{path}: needs a header with a 't_capture_ns' column")
-        rows = list(reader)
+    reader = csv.DictReader(io.StringIO(_read_utf8(path), newline=""))
+    fields = set(reader.fieldnames or ())
+    if "t_capture_ns" not in fields:
+        raise SourceError(f"{path}: needs a header with a 't_capture_ns' column")
+    rows = list(reader)
     named = {"left", "right"} <= fields
     has_pose = set(POSE_COLUMNS) <= fields
     if not has_pose and fields & set(POSE_COLUMNS):
@@ -90,12 +108,17 @@ def _read_index(folder: Path, path: Path) -> list[_Pair]:
         )
     pairs = []
     for number, row in enumerate(rows):
+        line = number + 2
         try:
             t_ns = int(row["t_capture_ns"])
         except (TypeError, ValueError) as exc:
-            line = number + 2
             raise SourceError(f"{path}:{line}: t_capture_ns is not an integer") from exc
-        pose = _pose(row, has_height, f"{path}:{number + 2}") if has_pose else None
+        if not 0 <= t_ns <= MAX_T_CAPTURE_NS:
+            raise SourceError(
+                f"{path}:{line}: t_capture_ns {row['t_capture_ns'][:24]} is out of range; "
+                f"a capture time is monotonic nanoseconds from 0 to {MAX_T_CAPTURE_NS}"
+            )
+        pose = _pose(row, has_height, f"{path}:{line}") if has_pose else None
         if named:
             pairs.append(_Pair(left_dir / row["left"], right_dir / row["right"], t_ns, pose))
         else:
@@ -287,10 +310,17 @@ def open_files(
         The source.
 
     Raises:
-        SourceError: The path is neither.
+        SourceError: The path is neither, or cannot be read.
     """
+    if not path.exists():
+        raise SourceError(f"{path}: not found; give a folder with left/ and right/ or a video file")
+    if not (path.is_dir() or path.is_file()):
+        raise SourceError(
+            f"{path}: neither a folder nor a regular file (a device, pipe or socket); give a "
+            "folder with left/ and right/ or a video file"
+        )
+    if not os.access(path, os.R_OK | (os.X_OK if path.is_dir() else 0)):
+        raise SourceError(f"{path}: not readable by this user; check its permissions")
     if path.is_dir():
         return FolderSource(path, fps, paced, loop)
-    if path.is_file():
-        return SideBySideVideoSource(path, fps, paced, loop)
-    raise SourceError(f"{path}: not found; give a folder with left/ and right/ or a video file")
+    return SideBySideVideoSource(path, fps, paced, loop)

@@ -1,0 +1,260 @@
+"""No traceback from input: hostile or broken files give one clear line and the config exit code."""
+
+from __future__ import annotations
+
+import subprocess
+import sys
+from pathlib import Path
+
+import pytest
+
+from avoidd.cli import main
+from tests.helpers import REPO, synthetic_config
+from tests.test_offline_config import _config, _pairs
+
+
+def _check(path: Path, capsys: pytest.CaptureFixture[str]) -> tuple[int, list[str]]:
+    """Run check-config in process: its exit code and its stderr lines."""
+    code = main(["check-config", str(path)])
+    return code, capsys.readouterr().err.splitlines()
+
+
+def _one_line(lines: list[str], *fragments: str) -> str:
+    """The single problem line (followed by the 'nothing was started' line) with fragments."""
+    assert len(lines) == 2, lines
+    assert lines[1] == "configuration invalid; nothing was started"
+    for fragment in fragments:
+        assert fragment in lines[0], (fragment, lines[0])
+    return lines[0]
+
+
+def test_a_config_that_is_not_utf8_is_one_line_naming_the_line(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    good = synthetic_config(tmp_path, "udpout:127.0.0.1:14550").read_bytes()
+    bad = tmp_path / "latin1.yaml"
+    bad.write_bytes(good.replace(b"version: 1\n", b"version: 1\n# caf\xe9 au lait\n"))
+    code, lines = _check(bad, capsys)
+    assert code == 2
+    _one_line(lines, f"{bad}:2:", "byte 0xe9 is not UTF-8", "save the file as UTF-8")
+
+
+def test_a_huge_config_is_refused_before_parsing(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    good = synthetic_config(tmp_path, "udpout:127.0.0.1:14550").read_text()
+    huge = tmp_path / "huge.yaml"
+    # Valid YAML all the way (a comment block), so only its size can refuse it.
+    huge.write_text(good + ("# " + "x" * 98 + "\n") * 10_001)
+    code, lines = _check(huge, capsys)
+    assert code == 2
+    _one_line(lines, f"{huge}:", "larger than 1 MB")
+
+
+def _bomb(levels: int = 9) -> str:
+    """A "billion laughs": nine aliases per level, nine levels (9**9 strings), ~400 bytes."""
+    lines = ["version: 1", 'a: &a ["lol", "lol", "lol", "lol", "lol", "lol", "lol", "lol", "lol"]']
+    for level in range(1, levels):
+        name, previous = chr(ord("a") + level), chr(ord("a") + level - 1)
+        lines.append(f"{name}: &{name} [{', '.join(['*' + previous] * 9)}]")
+    lines.append(f"heads: *{chr(ord('a') + levels - 1)}")
+    return "\n".join(lines) + "\n"
+
+
+@pytest.mark.timeout(60)  # a hang guard: without the budget this never ends
+def test_a_yaml_alias_bomb_is_refused(tmp_path: Path) -> None:
+    bomb = tmp_path / "bomb.yaml"
+    bomb.write_text(_bomb())
+    assert len(bomb.read_bytes()) < 1024
+    result = subprocess.run(
+        [sys.executable, "-m", "avoidd", "check-config", str(bomb)],
+        capture_output=True,
+        text=True,
+        timeout=50,
+        cwd=REPO,
+        check=False,
+    )
+    assert result.returncode == 2
+    _one_line(result.stderr.splitlines(), f"{bomb}:", "more than 100000 values", "alias")
+
+
+@pytest.mark.parametrize(
+    ("text", "fragments"),
+    [
+        # A few aliases are fine: they get as far as validation.
+        ("version: 1\nx: &x [1, 2]\ny: *x\n", (":1: heads: required key is missing",)),
+        ("version: 1\nheads: &a [*a]\n", (":2:", "refers to the node that contains it")),
+        ("version: 1\nheads: " + "[" * 5000 + "]" * 5000 + "\n", (":2:", "nested more than")),
+        ("version: 1\nheads: 1" + "0" * 5000 + "\n", (":2:", "cannot read the value")),
+        ("version: 1\nwhen: 2001-13-45\n", (":2:", "cannot read the value '2001-13-45'")),
+    ],
+)
+def test_hostile_yaml_is_one_clear_line(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str], text: str, fragments: tuple[str, ...]
+) -> None:
+    path = tmp_path / "hostile.yaml"
+    path.write_text(text)
+    code, lines = _check(path, capsys)
+    assert code == 2
+    assert lines[0].startswith(f"{path}:")
+    for fragment in fragments:
+        assert fragment in lines[0], lines
+
+
+@pytest.mark.parametrize(
+    ("csv", "fragment"),
+    [
+        (b"t_capture_ns\n-5\n100\n", "frames.csv:2: t_capture_ns -5 is out of range"),
+        (b"t_capture_ns\n1\n" + b"1" + b"0" * 30 + b"\n", "frames.csv:3: t_capture_ns 1000"),
+        (b"t_capture_ns\n1\n9223372036854775808\n", "frames.csv:3: t_capture_ns 9223"),
+        (
+            b"t_capture_ns,left,right\n1,000.png,000.png\n2,caf\xe9.png,001.png\n",
+            "frames.csv:3: byte 0xe9 is not UTF-8",
+        ),
+    ],
+)
+def test_a_bad_frames_csv_is_one_line_naming_file_and_line(
+    tmp_path: Path,
+    capsys: pytest.CaptureFixture[str],
+    caplog: pytest.LogCaptureFixture,
+    csv: bytes,
+    fragment: str,
+) -> None:
+    recording = _pairs(tmp_path / "rec", 2)
+    (recording / "frames.csv").write_bytes(csv)
+    config = _config(tmp_path, {"kind": "files", "path": "rec"}, mavlink=True)
+    code, lines = _check(config, capsys)
+    assert code == 2
+    _one_line(lines, fragment, "heads.front.source.path")
+    # replay given the recording as --input: the same line, as a runtime failure (exit 1).
+    out = tmp_path / "out.jsonl"
+    args = ["replay", "--config", str(config), "--input", str(recording), "--out", str(out)]
+    assert main(args) == 1
+    errors = [r.getMessage() for r in caplog.records if r.levelname == "ERROR"]
+    assert len(errors) == 1 and fragment in errors[0]
+
+
+def _line_of(text: str, needle: str) -> int:
+    """1-based line of the first occurrence of ``needle``."""
+    return text[: text.index(needle)].count("\n") + 1
+
+
+def _with(tmp_path: Path, old: str, new: str) -> tuple[Path, str]:
+    """The synthetic config with one piece of its text replaced (which must be there)."""
+    path = synthetic_config(
+        tmp_path,
+        "udpout:127.0.0.1:14550",
+        sections={"avoidance": {"enabled": False}},
+    )
+    text = path.read_text()
+    assert old in text, (old, text)
+    path.write_text(text.replace(old, new, 1))
+    return path, new
+
+
+@pytest.mark.parametrize(
+    ("old", "new", "key", "fragment"),
+    [
+        # No silent coercion.
+        ("system_id: 7", "system_id: '7'", "mavlink.system_id", "1 to 255 (no quotes), or auto"),
+        ("system_id: 7", "system_id: true", "mavlink.system_id", "1 to 255 (no quotes), or auto"),
+        ("version: 1", "version: 1.0", "version", "whole number"),
+        ("version: 1", "version: true", "version", "whole number"),
+        ("fps: 15", "fps: '15'", "heads[0].source.fps", "valid number"),
+        ("seed: 3", "seed: 3.0", "heads[0].source.seed", "valid integer"),
+        ("enabled: false", "enabled: 0", "avoidance.enabled", "valid boolean"),
+        ("rate_hz: 15.0", "rate_hz: true", "mavlink.obstacle_distance.rate_hz", "valid number"),
+        ("max_age_ms: 400", "max_age_ms: '400'", "pipeline.max_age_ms", "valid integer"),
+        # Sane ranges.
+        # (1e-6 is a number, as in YAML 1.2, not the string YAML 1.1 makes of it)
+        ("log_interval_s: 1.0", "log_interval_s: 1e-6", "pipeline.log_interval_s", "0.5"),
+        ("fps: 15", "fps: 1e-300", "heads[0].source.fps", "greater than or equal to 0.1"),
+        ("fps: 15", "fps: 1.0e-300", "heads[0].source.fps", "0.1"),
+        ("fps: 15", "fps: 1.0e+300", "heads[0].source.fps", "240"),
+        ("fps: 15", "fps: .inf", "heads[0].source.fps", "finite number"),
+        ("system_id: 7", "system_id: 7\n  heartbeat_hz: 1.0e-300", "mavlink.heartbeat_hz", "0.5"),
+        (
+            "system_id: 7",
+            "system_id: 7\n  streams: {attitude_hz: 1.0e-9}",
+            "mavlink.streams.attitude_hz",
+            "0 (not asked) or from 0.1 to 1000 Hz",
+        ),
+    ],
+)
+def test_values_are_never_coerced_and_stay_in_sane_ranges(
+    tmp_path: Path,
+    capsys: pytest.CaptureFixture[str],
+    old: str,
+    new: str,
+    key: str,
+    fragment: str,
+) -> None:
+    path, needle = _with(tmp_path, old, new)
+    code, lines = _check(path, capsys)
+    assert code == 2
+    line = _line_of(path.read_text(), needle.split("\n")[-1].strip().split(":")[0])
+    _one_line(lines, f"{path}:{line}: {key}: ", fragment)
+
+
+def test_v4l2_back_off_limits_must_be_in_order(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    source = {
+        "kind": "v4l2",
+        "devices": ["/dev/video0"],
+        "width": 320,
+        "height": 240,
+        "reopen_min_s": 5.0,
+        "reopen_max_s": 1.0,
+    }
+    path = synthetic_config(tmp_path, "udpout:127.0.0.1:14550", source=source)
+    code, lines = _check(path, capsys)
+    assert code == 2
+    line = _line_of(path.read_text(), "source:")
+    _one_line(
+        lines,
+        f"{path}:{line}: heads[0].source: reopen_min_s (5 s) is above reopen_max_s (1 s)",
+        "swap them",
+    )
+
+
+def test_an_infinite_focal_length_names_the_calibration_file_line_and_key(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    path = synthetic_config(tmp_path, "udpout:127.0.0.1:14550")
+    calibration = tmp_path / "calib.yaml"
+    text = calibration.read_text().replace("fx: 200.0", "fx: .inf")
+    calibration.write_text(text)
+    code, lines = _check(path, capsys)
+    assert code == 2
+    line = _line_of(text, "fx:")
+    _one_line(lines, f"{calibration}:{line}: rectified.fx: ", "finite number")
+
+
+def test_files_path_that_is_neither_a_folder_of_pairs_nor_a_video_is_refused(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    import os
+
+    (tmp_path / "notes.txt").write_text("not a video\n")
+    (tmp_path / "empty").mkdir()
+    os.mkfifo(tmp_path / "pipe")
+    for name, fragment in [
+        ("notes.txt", "cannot open the video"),
+        ("empty", "expected 'left/' and 'right/' folders"),
+        ("pipe", "neither a folder nor a regular file"),
+    ]:
+        config = _config(tmp_path, {"kind": "files", "path": name}, mavlink=True)
+        code, lines = _check(config, capsys)
+        assert code == 2
+        _one_line(lines, "heads.front.source.path", f"{tmp_path / name}: {fragment}")
+
+
+def test_numbers_with_an_exponent_and_no_dot_are_numbers(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    path, _ = _with(tmp_path, "fps: 15", "fps: 1.5e1")
+    text = path.read_text().replace("log_interval_s: 1.0", "log_interval_s: 2e0")
+    path.write_text(text)
+    code, _ = _check(path, capsys)
+    assert code == 0
