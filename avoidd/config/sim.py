@@ -148,7 +148,7 @@ class PassConfig(Strict):
     min_clearance_m: float | None = Field(None, ge=0.0, le=100.0)
     reach_goal_s: float | None = Field(None, gt=0.0, le=3600.0)
     end_state: Literal["arrived", "no path", "moving", "stale"] | None = None
-    closest_approach_m: tuple[float, float] | None = None
+    closest_approach_m: Annotated[tuple[float, float], Lax] | None = None
 
 
 class ScenarioConfig(Strict):
