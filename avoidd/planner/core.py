@@ -47,7 +47,7 @@ _SLOW_FOR_GAP_M_S = 1.0
 _ONWARD_RAD = math.radians(100.0)
 """Ways within this of the goal's direction go onward; beyond it the vehicle backs out."""
 _BACK_RAD = math.radians(170.0)
-_LEAVE_M = 0.3
+_LEAVE_M = 0.4
 """A way stays admissible down to this much free distance (it becomes admissible from 1 m):
 the speed law brings the vehicle up to its margin and it stops there, not half a metre short."""
 """Ways at least this far from the goal's direction lead straight back."""
@@ -235,12 +235,7 @@ class Planner:
             nearest_m = float(np.min(np.hypot(offsets[:, 0], offsets[:, 1])))
             inside = max(nearest_m - _INSIDE_SLACK_M, self.config.vehicle_radius_m)
             clearance = min(clearance, inside)
-        # Turning onto a heading, the velocity across it carries the vehicle sideways for the
-        # latency and while it brakes that part (v / 2a): its path is shifted by that much.
-        velocity = (pose.north_m_s, pose.east_m_s)
-        speed = math.hypot(*velocity)
-        drift_s = self.config.latency_ms / 1000.0 + speed / (2.0 * self.config.max_accel_m_s2)
-        return free_distance(offsets, headings_rad, clearance, velocity, drift_s)
+        return free_distance(offsets, headings_rad, clearance)
 
     def free_m(self, pose: Pose, headings_rad: np.ndarray, buffer_m: float = 0.0) -> np.ndarray:
         """Free distance along each heading from a pose.

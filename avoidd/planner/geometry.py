@@ -23,13 +23,7 @@ def wrap_rad(angle: Array | float) -> Array:
     return np.asarray(-(np.remainder(-np.asarray(angle) + math.pi, 2 * math.pi) - math.pi))
 
 
-def free_distance(
-    offsets_ne: Array,
-    headings_rad: Array,
-    clearance_m: float,
-    velocity_ne: tuple[float, float] = (0.0, 0.0),
-    drift_s: float = 0.0,
-) -> Array:
+def free_distance(offsets_ne: Array, headings_rad: Array, clearance_m: float) -> Array:
     """How far the vehicle can go along each heading before it is ``clearance_m`` from a point.
 
     This is the VFH+ enlargement, exact for a disc: a point at distance ``d`` blocks the
@@ -39,9 +33,6 @@ def free_distance(
         offsets_ne: (N, 2) obstacle points relative to the vehicle, north and east (metres).
         headings_rad: (K,) headings, radians from north, clockwise.
         clearance_m: Vehicle radius plus margin.
-        velocity_ne: The vehicle's velocity (m/s): turning onto a heading, the part of it
-            across that heading carries the vehicle sideways ...
-        drift_s: ... for this long (its path is shifted by that much).
 
     Returns:
         (K,) distances; 0 toward a point already within the clearance, ``inf`` when nothing
@@ -52,9 +43,6 @@ def free_distance(
     unit = np.stack([np.cos(headings_rad), np.sin(headings_rad)], axis=1)  # (K, 2)
     along = unit @ offsets_ne.T  # (K, N)
     across = unit[:, 0:1] * offsets_ne[:, 1] - unit[:, 1:2] * offsets_ne[:, 0]
-    if drift_s > 0.0:
-        sideways = unit[:, 0] * velocity_ne[1] - unit[:, 1] * velocity_ne[0]  # (K,)
-        across = across - (sideways * drift_s)[:, None]
     reach = clearance_m * clearance_m - across * across
     with np.errstate(invalid="ignore"):
         contact = along - np.sqrt(np.maximum(reach, 0.0))
