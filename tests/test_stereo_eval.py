@@ -13,7 +13,7 @@ import pytest
 from avoidd.cli import main
 from avoidd.config import CensusConfig, SadConfig, SgbmConfig
 from avoidd.evaluation.datasets import Calib, find_scenes, read_pfm
-from avoidd.evaluation.metrics import score
+from avoidd.evaluation.metrics import details, score
 from avoidd.evaluation.run import evaluate
 from avoidd.sources.scene import Box, Pole, Scene
 from avoidd.types import RectifiedRig
@@ -144,6 +144,20 @@ def test_scores_by_hand() -> None:
     # Depth 1.0 m true; 0.952 (4.8% off), 0.870 (13%), 0.769 (23%), missing: 3 of 4 bad.
     assert s.depth_bad10 == pytest.approx(75.0)
     assert s.ms == 12.0
+
+
+def test_details_by_hand() -> None:
+    truth = np.array([[10.0, 10.0, 10.0, 10.0, np.nan, 4.0]], dtype=np.float32)
+    estimate = np.array([[7.0, 10.5, 9.0625, 10.0, 5.0, 1.5]], dtype=np.float32)
+    d = details(estimate, truth, 2)
+    # Whole pixels: 7.0, 10.0, 5.0 of six estimates (9.0625 is a 1/16 step off).
+    assert d.whole_px == pytest.approx(50.0)
+    # Within 1 px of the truth: 0.5, 0.9375 and 0.0.
+    assert d.fine_err == pytest.approx((0.5 + 0.9375 + 0.0) / 3)
+    # Band (columns 0-1): 7.0 reads 3 px too far, 10.5 does not. Right of it: 9.0625, 10.0
+    # and 1.5 (2.5 px too far) have truth.
+    assert d.band_too_far == pytest.approx(50.0)
+    assert d.rest_too_far == pytest.approx(100.0 / 3)
 
 
 def _write_pfm(path: Path, image: np.ndarray) -> None:

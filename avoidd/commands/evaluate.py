@@ -9,7 +9,7 @@ from pathlib import Path
 from avoidd.commands import EXIT_OK
 from avoidd.evaluation.edges import edge_suite, format_edges, run_edge_case
 from avoidd.evaluation.near import format_near, near_suite, run_near_case
-from avoidd.evaluation.run import evaluate, format_runs
+from avoidd.evaluation.run import evaluate, format_details, format_runs
 from avoidd.evaluation.scenes import SuiteSummary, contact_suite, draws, run_suite, suite
 
 
@@ -27,6 +27,12 @@ def configure(name: str, parser: argparse.ArgumentParser) -> None:
         )
         parser.add_argument("--max-scenes", type=int, help="stop after N scenes")
         parser.add_argument("--json", type=Path, help="also write the scores as JSON")
+        parser.add_argument(
+            "--detail",
+            action="store_true",
+            help="also print per matcher: estimates on whole pixels, sub-pixel error, and "
+            "estimates too far in the left border band and right of it",
+        )
         parser.set_defaults(handler=run_eval)
     else:
         parser.add_argument("--scenes", type=int, default=24, help="obstacle scenes (default 24)")
@@ -53,6 +59,8 @@ def run_eval(args: argparse.Namespace) -> int:
     """Score the matchers and print (and optionally write) the table."""
     runs = evaluate(args.path, args.matcher or ["sgbm"], args.max_scenes)
     print(format_runs(runs))
+    if args.detail:
+        print(format_details(runs))
     if args.json is not None:
         payload = [run.as_json() for run in runs]
         document = payload[0] if len(payload) == 1 else payload
