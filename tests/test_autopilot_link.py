@@ -95,11 +95,14 @@ async def test_discovery_modes_and_stream_requests(
             (m.target_system, m.target_component) == (42, 1)
             for m in autopilot.of_type("COMMAND_LONG")
         )
-        # The streams arrive at the asked rate.
-        before = daemon.received["ATTITUDE"]
-        await asyncio.sleep(2.0)
-        rate_hz = (daemon.received["ATTITUDE"] - before) / 2.0
-        assert 40.0 <= rate_hz <= 60.0, rate_hz
+        # The autopilot streams at the asked interval and every ATTITUDE it sent reaches
+        # avoidd. (The rate they arrive at on a given machine is a benchmark's figure:
+        # `avoidd bench-link --asked`.)
+        assert autopilot.streams[30] == pytest.approx(0.02)
+        assert await wait_for(lambda: autopilot.sent["ATTITUDE"] >= 100, 30.0)
+        sent = autopilot.sent["ATTITUDE"]
+        assert await wait_for(lambda: daemon.received["ATTITUDE"] >= sent, 10.0)
+        assert daemon.received["ATTITUDE"] <= autopilot.sent["ATTITUDE"]
         assert vehicle.rangefinder is not None and vehicle.rangefinder.distance_m == 1.5
         assert vehicle.position is not None and vehicle.position.down_m == -1.5
         assert daemon.link.parse_errors == 0

@@ -3,6 +3,8 @@ from __future__ import annotations
 import logging
 import time
 from pathlib import Path
+from types import SimpleNamespace
+from typing import Any
 
 import cv2
 import numpy as np
@@ -10,8 +12,10 @@ import pytest
 
 from avoidd.config import SyntheticObstacleConfig, SyntheticSourceConfig, V4l2SourceConfig
 from avoidd.errors import BrokenFrame, SourceError, SourceExhausted
+from avoidd.sources import synthetic
 from avoidd.sources.base import Pacer
 from avoidd.sources.files import FolderSource, SideBySideVideoSource, open_files
+from avoidd.sources.scene import render_pair
 from avoidd.sources.synthetic import SyntheticSource, scene_at
 from avoidd.sources.truth import nearest_obstacle
 from avoidd.sources.v4l2 import V4l2Source
@@ -250,15 +254,36 @@ def test_pacer_spaces_frames_and_does_not_burst_after_a_stall() -> None:
     assert (np.diff(after) / 1e6 >= 19.0).all()
 
 
-def test_paced_moving_scene_says_when_it_cannot_keep_up(caplog: pytest.LogCaptureFixture) -> None:
+@pytest.mark.parametrize(("render_ms", "warned"), [(12.0, True), (3.0, False)])
+def test_paced_moving_scene_says_when_it_cannot_keep_up(
+    monkeypatch: pytest.MonkeyPatch,
+    caplog: pytest.LogCaptureFixture,
+    render_ms: float,
+    warned: bool,
+) -> None:
+    """At 200 fps a frame has 5 ms: a renderer made to take 12 ms is reported (once), one
+    that takes 3 ms is not. The source reads a fake clock that only the renderer advances."""
+    clock = [0.0]
+
+    def render(scene: Any, rig: RectifiedRig) -> Any:
+        clock[0] += render_ms / 1000.0
+        return render_pair(scene, rig)
+
+    monkeypatch.setattr(synthetic, "render_pair", render)
+    monkeypatch.setattr(synthetic, "time", SimpleNamespace(perf_counter=lambda: clock[0]))
     config = synthetic_config(approach_speed_mps=1.0, fps=200)
     source = SyntheticSource(config, RectifiedRig(320, 240, 200.0, 200.0, 159.5, 119.5, 0.12), True)
     with caplog.at_level(logging.WARNING):
         source.read()
         source.read()
     warnings = [r.getMessage() for r in caplog.records if "moving scene" in r.getMessage()]
+    assert clock[0] == pytest.approx(2 * render_ms / 1000.0)  # both frames were rendered
+    if not warned:
+        assert warnings == []
+        return
     assert len(warnings) == 1
-    assert "not 200.0; lower fps or the resolution, or use replay" in warnings[0]
+    assert "takes 12 ms per frame" in warnings[0]
+    assert "about 83.3 fps, not 200.0; lower fps or the resolution, or use replay" in warnings[0]
 
 
 def test_frames_csv_carries_the_recorded_attitude_and_height(tmp_path: Path) -> None:

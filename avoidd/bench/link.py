@@ -35,26 +35,35 @@ def _ignore(severity: int, text: str, key: str | None = None) -> None:
     """An announcer that drops everything (nobody to tell during a benchmark)."""
 
 
-async def run_bench(rate_hz: float, seconds: float) -> dict[str, Any]:
+async def run_bench(rate_hz: float, seconds: float, asked: bool = False) -> dict[str, Any]:
     """Stream ``rate_hz`` messages per second at this process for ``seconds`` and measure.
 
+    Args:
+        rate_hz: Total rate of the mock's fixed streams (unused with ``asked``).
+        seconds: Length of the measured window.
+        asked: Instead of fixed streams, the mock sends what avoidd asks of it with
+            ``MAV_CMD_SET_MESSAGE_INTERVAL`` at the default ``mavlink.streams`` rates, as a
+            real autopilot would.
+
     Returns:
-        Figures: messages received per second, CPU percent of one core, microseconds of CPU
-        per message, parse errors and the largest event-loop lag.
+        Figures: messages received per second (in all and by type), CPU percent of one core,
+        microseconds of CPU per message, parse errors and the largest event-loop lag.
     """
     with socket.socket(socket.AF_INET, socket.SOCK_DGRAM) as probe:
         probe.bind(("127.0.0.1", 0))
         port = probe.getsockname()[1]
     config = MavlinkConfig(
         connection=f"udpin:127.0.0.1:{port}",
-        streams=StreamsConfig(
+        streams=StreamsConfig()
+        if asked
+        else StreamsConfig(
             attitude_hz=0, local_position_hz=0, distance_sensor_hz=0, system_time_hz=0
         ),
     )
     link = MavLink(config.link, Codec(1, 196))
-    Vehicle(link, config, _ignore)
+    vehicle = Vehicle(link, config, _ignore)
     await link.open()
-    streams = [f"--stream={name}={rate_hz * share:g}" for name, share in _SHARES]
+    streams = [] if asked else [f"--stream={name}={rate_hz * share:g}" for name, share in _SHARES]
     mock = await asyncio.create_subprocess_exec(
         sys.executable,
         "-m",
@@ -69,12 +78,27 @@ async def run_bench(rate_hz: float, seconds: float) -> dict[str, Any]:
     lag_task = asyncio.create_task(lag.run())
     try:
         await asyncio.sleep(_WARMUP_S)
+        if asked:
+            # The daemon ticks the vehicle to send its stream requests; so does this.
+            deadline_s = time.monotonic() + 10.0
+            while not (vehicle.link_up and vehicle.requests and vehicle.streams_acknowledged):
+                if time.monotonic() > deadline_s:
+                    raise RuntimeError("the mock autopilot acknowledged no stream request")
+                vehicle.tick(time.monotonic_ns())
+                await asyncio.sleep(0.05)
+            await asyncio.sleep(0.5)
         lag.reset()
+        by_type0 = dict(link.received)
         count0 = sum(link.received.values())
         cpu0, wall0 = _cpu_s(), time.perf_counter()
         await asyncio.sleep(seconds)
         cpu_s, wall_s = _cpu_s() - cpu0, time.perf_counter() - wall0
         count = sum(link.received.values()) - count0
+        by_type = {
+            k: v - by_type0.get(k, 0)
+            for k, v in sorted(link.received.items())
+            if v > by_type0.get(k, 0)
+        }
     finally:
         await cancel_task(lag_task)
         with contextlib.suppress(ProcessLookupError):
@@ -82,9 +106,11 @@ async def run_bench(rate_hz: float, seconds: float) -> dict[str, Any]:
         await mock.wait()
         await link.close()
     return {
-        "rate_asked_hz": rate_hz,
+        "streams": "asked" if asked else "fixed",
+        "rate_asked_hz": "default streams" if asked else rate_hz,
         "seconds": round(wall_s, 3),
         "received_per_s": round(count / wall_s, 1),
+        "received_per_s_by_type": {k: round(v / wall_s, 1) for k, v in by_type.items()},
         "cpu_percent_one_core": round(100.0 * cpu_s / wall_s, 2),
         "cpu_us_per_message": round(1e6 * cpu_s / max(count, 1), 2),
         "parse_errors": link.parse_errors,
@@ -97,9 +123,9 @@ def format_report(report: dict[str, Any]) -> str:
     """The figures as a short human-readable block."""
     return "\n".join(
         [
-            f"incoming MAVLink over loopback UDP, asked {report['rate_asked_hz']:g} msg/s "
-            f"for {report['seconds']} s",
-            f"  received          {report['received_per_s']:.0f} msg/s",
+            f"incoming MAVLink over loopback UDP, {_asked(report)} for {report['seconds']} s",
+            f"  received          {report['received_per_s']:.0f} msg/s: "
+            + ", ".join(f"{k} {v:.1f}" for k, v in report["received_per_s_by_type"].items()),
             f"  CPU               {report['cpu_percent_one_core']:.1f}% of one core "
             f"({report['cpu_us_per_message']:.1f} us per message)",
             f"  parse errors      {report['parse_errors']}",
@@ -107,3 +133,9 @@ def format_report(report: dict[str, Any]) -> str:
             f"({report['max_own_loop_lag_ms']:.1f} ms not waiting for a CPU)",
         ]
     )
+
+
+def _asked(report: dict[str, Any]) -> str:
+    if report["streams"] == "asked":
+        return "streams asked with SET_MESSAGE_INTERVAL at the default rates"
+    return f"fixed streams of {report['rate_asked_hz']:g} msg/s in all"

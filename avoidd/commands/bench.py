@@ -1,4 +1,4 @@
-"""``avoidd bench`` (vision stages next to bare OpenCV SGBM) and ``avoidd bench-link``."""
+"""``avoidd bench`` (vision stages next to bare OpenCV SGBM, or the daemon), ``bench-link``."""
 
 from __future__ import annotations
 
@@ -30,6 +30,16 @@ def configure(name: str, parser: argparse.ArgumentParser) -> None:
             metavar="MAV0",
             help="also time a recorded EuRoC sequence (its mav0 folder) at its own size",
         )
+        parser.add_argument(
+            "--daemon",
+            type=Path,
+            metavar="CONFIG",
+            help="instead: run the daemon on CONFIG with a listener in place of its link and "
+            "print how often it sends OBSTACLE_DISTANCE, how much of it is fresh, fps and latency",
+        )
+        parser.add_argument(
+            "--seconds", type=float, default=10.0, help="with --daemon: the measured window"
+        )
         parser.set_defaults(handler=run_vision_bench)
     elif name == "bench-sim":
         parser.add_argument("--frames", type=int, default=20, help="pairs rendered per size")
@@ -39,12 +49,20 @@ def configure(name: str, parser: argparse.ArgumentParser) -> None:
     else:
         parser.add_argument("--rate", type=float, default=2000.0, help="messages per second")
         parser.add_argument("--seconds", type=float, default=5.0, help="measurement length")
+        parser.add_argument(
+            "--asked",
+            action="store_true",
+            help="instead of fixed streams at --rate, the streams avoidd asks of an autopilot "
+            "(ATTITUDE 50 Hz and the rest at the default rates), each with its received rate",
+        )
         parser.add_argument("--json", type=Path, help="also write the figures as JSON")
         parser.set_defaults(handler=run_link_bench)
 
 
 def run_vision_bench(args: argparse.Namespace) -> int:
-    """Time the pipeline's stages and print the table."""
+    """Time the pipeline's stages and print the table (or, with ``--daemon``, the daemon)."""
+    if args.daemon is not None:
+        return run_daemon_bench(args)
     from avoidd.bench.vision import (
         DISPARITIES,
         MATCHERS,
@@ -66,11 +84,22 @@ def run_vision_bench(args: argparse.Namespace) -> int:
     return EXIT_OK
 
 
+def run_daemon_bench(args: argparse.Namespace) -> int:
+    """Run the daemon on a configuration for a while and print what it sent."""
+    from avoidd.bench.daemon import format_report, run_bench
+
+    report = asyncio.run(run_bench(args.daemon, args.seconds))
+    print(format_report(report))
+    if args.json is not None:
+        args.json.write_text(json.dumps(report, indent=2) + "\n")
+    return EXIT_OK
+
+
 def run_link_bench(args: argparse.Namespace) -> int:
     """Measure the CPU of decoding a busy incoming stream and print it."""
     from avoidd.bench.link import format_report, run_bench
 
-    report = asyncio.run(run_bench(args.rate, args.seconds))
+    report = asyncio.run(run_bench(args.rate, args.seconds, args.asked))
     print(format_report(report))
     if args.json is not None:
         args.json.write_text(json.dumps(report, indent=2) + "\n")

@@ -9,8 +9,8 @@ from pathlib import Path
 from avoidd.commands import EXIT_OK
 from avoidd.evaluation.edges import edge_suite, format_edges, run_edge_case
 from avoidd.evaluation.near import format_near, near_suite, run_near_case
-from avoidd.evaluation.run import evaluate, format_runs
-from avoidd.evaluation.scenes import contact_suite, run_suite, suite
+from avoidd.evaluation.run import evaluate, format_details, format_runs
+from avoidd.evaluation.scenes import SuiteSummary, contact_suite, draws, run_suite, suite
 
 
 def configure(name: str, parser: argparse.ArgumentParser) -> None:
@@ -27,10 +27,22 @@ def configure(name: str, parser: argparse.ArgumentParser) -> None:
         )
         parser.add_argument("--max-scenes", type=int, help="stop after N scenes")
         parser.add_argument("--json", type=Path, help="also write the scores as JSON")
+        parser.add_argument(
+            "--detail",
+            action="store_true",
+            help="also print per matcher: estimates on whole pixels, sub-pixel error, and "
+            "estimates too far in the left border band and right of it",
+        )
         parser.set_defaults(handler=run_eval)
     else:
         parser.add_argument("--scenes", type=int, default=24, help="obstacle scenes (default 24)")
-        parser.add_argument("--seed", type=int, default=2024, help="scene generator seed")
+        parser.add_argument(
+            "--seed",
+            type=int,
+            action="append",
+            help="scene generator seed (default 2024); repeat for several draws, whose "
+            "scenes are then named SEED/NAME and summed up per draw and over all",
+        )
         parser.add_argument(
             "--contact-scenes", type=int, default=12, help="roll-free contact scenes"
         )
@@ -47,6 +59,8 @@ def run_eval(args: argparse.Namespace) -> int:
     """Score the matchers and print (and optionally write) the table."""
     runs = evaluate(args.path, args.matcher or ["sgbm"], args.max_scenes)
     print(format_runs(runs))
+    if args.detail:
+        print(format_details(runs))
     if args.json is not None:
         payload = [run.as_json() for run in runs]
         document = payload[0] if len(payload) == 1 else payload
@@ -56,8 +70,14 @@ def run_eval(args: argparse.Namespace) -> int:
 
 def run_eval_perception(args: argparse.Namespace) -> int:
     """Score perception on the rendered suites and print the summaries."""
-    summary = run_suite(suite(args.scenes, args.seed) + contact_suite(args.contact_scenes))
+    seeds = args.seed or [2024]
+    scenes = suite(args.scenes, seeds[0]) if len(seeds) == 1 else draws(seeds, args.scenes)
+    summary = run_suite(scenes + contact_suite(args.contact_scenes))
     print(summary.format())
+    if len(seeds) > 1:
+        for seed in seeds:
+            draw = SuiteSummary([r for r in summary.results if r.name.startswith(f"{seed}/")])
+            print(f"draw {seed}: {draw.headline()}")
     if args.near_scenes:
         print()
         print(format_near([run_near_case(c) for c in near_suite(args.near_scenes)]))

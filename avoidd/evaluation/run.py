@@ -20,7 +20,14 @@ from avoidd.config import (
 )
 from avoidd.errors import ConfigError
 from avoidd.evaluation.datasets import Scene, find_scenes
-from avoidd.evaluation.metrics import Scores, mean_scores, score
+from avoidd.evaluation.metrics import (
+    Details,
+    Scores,
+    details,
+    mean_details,
+    mean_scores,
+    score,
+)
 from avoidd.progress import Progress
 from avoidd.types import FloatArray, Image
 from avoidd.vision.matchers import Matcher, create_matcher
@@ -138,6 +145,8 @@ class Run:
 
     matcher: str
     scenes: list[tuple[str, Scores]] = field(default_factory=list)
+    details: list[Details] = field(default_factory=list)
+    """Per scene, in the order of ``scenes``."""
 
     @property
     def mean(self) -> Scores:
@@ -187,8 +196,26 @@ def evaluate(path: Path, matchers: list[str], max_scenes: int | None = None) -> 
             disparity = compute(left, right)
             ms = (time.perf_counter() - started) * 1000.0
             run.scenes.append((scene.name, score(disparity, scene.truth_px, scene.calib, ms)))
+            run.details.append(details(disparity, scene.truth_px, scene.num_disparities))
             progress.step(f"{run.matcher} {scene.name}")
     return runs
+
+
+def format_details(runs: list[Run]) -> str:
+    """One row per matcher: its :class:`Details` averaged over the scenes."""
+    lines = [
+        "means over scenes: estimates on a whole pixel (%; 6.25 if spread evenly over 1/16 "
+        "steps); mean error of those within 1 px of the truth (px); estimates too far by more "
+        "than 2 px in the left border band and right of it (%)",
+        f"{'matcher':<14} {'whole%':>7} {'fine px':>8} {'band far%':>10} {'rest far%':>10}",
+    ]
+    for run in runs:
+        d = mean_details(run.details)
+        band = f"{d.band_too_far:10.1f}" if np.isfinite(d.band_too_far) else f"{'-':>10}"
+        lines.append(
+            f"{run.matcher:<14} {d.whole_px:7.1f} {d.fine_err:8.3f} {band} {d.rest_too_far:10.1f}"
+        )
+    return "\n".join(lines)
 
 
 def format_runs(runs: list[Run]) -> str:

@@ -12,6 +12,7 @@ from __future__ import annotations
 import dataclasses
 import math
 import statistics
+from collections.abc import Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
@@ -142,6 +143,23 @@ def suite(count: int = 24, seed: int = 2024) -> list[SceneCase]:
             name = f"ground-r{roll:+.0f}-p{pitch:+.0f}-fb{rig.fx * rig.baseline_m:.0f}"
             cases.append(SceneCase(name, rig, scene, 0.0))
     return cases
+
+
+def draws(seeds: Sequence[int], count: int = 24) -> list[SceneCase]:
+    """Several draws of :func:`suite`, each scene's name prefixed with its draw's seed.
+
+    Args:
+        seeds: One draw per seed.
+        count: Obstacle scenes per draw.
+
+    Returns:
+        The scenes of every draw, named ``SEED/NAME``.
+    """
+    return [
+        dataclasses.replace(case, name=f"{seed}/{case.name}")
+        for seed in seeds
+        for case in suite(count, seed)
+    ]
 
 
 def suite_head(case: SceneCase, num_disparities: int = 128) -> HeadConfig:
@@ -330,6 +348,15 @@ class SuiteSummary:
         """Ground-plane vs stereo differences at ground contacts, percent."""
         return [e for r in self.results for e in r.contact_errors_pct]
 
+    def headline(self) -> str:
+        """The summary in one line: nearest-distance errors, misses and false bins."""
+        return (
+            f"median {self.percentile(50):.2f}%, p95 {self.percentile(95):.2f}%, "
+            f"max {max(self.errors_pct, default=math.nan):.2f}% over {len(self.errors_pct)} "
+            f"scenes; missed {len(self.missed)}; false bins {len(self.false_bins)} in "
+            f"{len({r.name for r in self.results if r.false_bins})} of {len(self.results)} scenes"
+        )
+
     def format(self) -> str:
         """A table of every scene and the summary figures."""
         lines = [f"{'scene':<26} {'truth m':>8} {'read m':>8} {'err %':>7}  notes"]
@@ -349,7 +376,11 @@ class SuiteSummary:
             f"p95 {self.percentile(95):.2f}%, max {max(self.errors_pct):.2f}% over "
             f"{len(self.errors_pct)} scenes"
         )
-        lines.append(f"missed obstacles: {len(self.missed)}; false bins: {len(self.false_bins)}")
+        lines.append(
+            f"missed obstacles: {len(self.missed)}; false bins: {len(self.false_bins)} "
+            f"in {len({r.name for r in self.results if r.false_bins})} of "
+            f"{len(self.results)} scenes"
+        )
         if contact:
             lines.append(
                 f"ground-plane vs stereo at ground contacts: max |diff| {max(contact):.2f}% "
