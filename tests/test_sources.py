@@ -244,14 +244,27 @@ def test_synthetic_truth_follows_the_mount() -> None:
     assert nearest.distance_m == pytest.approx(4.7, abs=0.03)
 
 
-def test_pacer_spaces_frames_and_does_not_burst_after_a_stall() -> None:
+def test_pacer_spaces_frames_and_does_not_burst_after_a_stall(
+    monkeypatch: pytest.MonkeyPatch,
+) -> None:
+    """On a fake clock (sleeping advances it): slots 20 ms apart; after a stall of five
+    periods the next frame comes at once and the ones after it 20 ms apart again, with no
+    burst of frames to catch up."""
+    clock = [1_000_000_000]
+
+    def sleep(seconds: float) -> None:
+        clock[0] += round(seconds * 1e9)
+
+    fake = SimpleNamespace(monotonic_ns=lambda: clock[0], sleep=sleep)
+    monkeypatch.setattr("avoidd.sources.base.time", fake)
     pacer = Pacer(50.0)
     stamps = [pacer.wait() for _ in range(5)]
-    gaps = np.diff(stamps) / 1e6
-    assert (gaps >= 19.0).all()
-    time.sleep(0.1)  # a stall of five periods
+    assert list(np.diff(stamps)) == [20_000_000] * 4
+    clock[0] += 100_000_000  # a stall of five periods
+    stalled_at = clock[0]
     after = [pacer.wait() for _ in range(3)]
-    assert (np.diff(after) / 1e6 >= 19.0).all()
+    assert after[0] == stalled_at
+    assert list(np.diff(after)) == [20_000_000] * 2
 
 
 @pytest.mark.parametrize(("render_ms", "warned"), [(12.0, True), (3.0, False)])
