@@ -123,7 +123,8 @@ def run_sim_bench(args: argparse.Namespace) -> int:
         )
     print(
         f"planner: decide {planner['decide_ms_mean']} ms mean, {planner['decide_ms_p95']} ms "
-        f"p95; observe {planner['observe_ms_mean']} ms ({planner['remembered_points']} points)"
+        f"p95, {planner['decide_cpu_ms_mean']} ms of CPU; observe "
+        f"{planner['observe_ms_mean']} ms ({planner['remembered_points']} points)"
     )
     print(f"lockstep, 30 s pole forest, 320x240 stereo at 15 Hz: {lockstep['wall_s']} s wall")
     if args.json is not None:

@@ -292,23 +292,26 @@ class Planner:
         # Directions are chosen with room to spare for the turn the vehicle takes to follow
         # them (it lags its setpoint by a few tenths of a second): more at speed.
         buffer = _BUFFER_M + _BUFFER_S * math.hypot(pose.north_m_s, pose.east_m_s)
-        free = self.free_m(pose, self._directions, buffer)
-        enter = max(config.acceptance_radius_m, 1.0)
-        leave = _LEAVE_M
-        self._admissible = np.where(
-            free >= enter, True, np.where(free < leave, False, self._admissible)
-        )
-        goal_free = float(self.free_m(pose, np.array([goal_rad]), buffer)[0])
-        # The admissible grid directions, and the middles of gaps the grid may step over.
-        headings = self._directions[self._admissible]
-        headings_free = free[self._admissible]
+        # One pass over the memory and the seen grid for every heading this cycle looks at: the
+        # 72 directions, the goal's, and the middles of gaps the 5-degree grid may step over.
         gaps = gap_headings(
             self.memory.offsets((pose.north_m, pose.east_m)),
             self.clearance_m + buffer,
             self._look_m,
         )
+        looked = self.free_m(pose, np.concatenate([self._directions, [goal_rad], gaps]), buffer)
+        grid_count = self._directions.size
+        free, goal_free = looked[:grid_count], float(looked[grid_count])
+        gaps_free = looked[grid_count + 1 :]
+        enter = max(config.acceptance_radius_m, 1.0)
+        leave = _LEAVE_M
+        self._admissible = np.where(
+            free >= enter, True, np.where(free < leave, False, self._admissible)
+        )
+        # The admissible grid directions, and the gaps' middles with room to go.
+        headings = self._directions[self._admissible]
+        headings_free = free[self._admissible]
         if gaps.size:
-            gaps_free = self.free_m(pose, gaps, buffer)
             headings = np.concatenate([headings, gaps[gaps_free >= enter]])
             headings_free = np.concatenate([headings_free, gaps_free[gaps_free >= enter]])
         keep = np.ones(headings.size, dtype=np.bool_)
@@ -410,15 +413,17 @@ class Planner:
         offsets = self.memory.offsets((pose.north_m, pose.east_m))
         gaps = gap_headings(offsets, self.clearance_m + _BUFFER_M, self._look_m)
         headings = np.concatenate([self._directions, gaps])
-        headings = headings[self.free_m(pose, headings, _BUFFER_M) >= clear_m]
+        # Only the ways worth slowing down for are checked: at most 30 degrees farther from
+        # the goal's direction than the chosen one, on the committed side.
         goal_delta = wrap_rad(headings - goal_rad)
-        if self._side:
-            goal_delta = goal_delta[np.sign(goal_delta) != -self._side]
-        if goal_delta.size == 0:
-            return math.inf
         chosen_off = abs(float(wrap_rad(chosen_rad - goal_rad)))
-        worse_rad = float(np.min(np.abs(goal_delta))) - chosen_off
-        return _SLOW_FOR_GAP_M_S if worse_rad <= math.radians(30.0) else math.inf
+        worth = np.abs(goal_delta) <= chosen_off + math.radians(30.0)
+        if self._side:
+            worth &= np.sign(goal_delta) != -self._side
+        if not worth.any():
+            return math.inf
+        clear = self.free_m(pose, headings[worth], _BUFFER_M) >= clear_m
+        return _SLOW_FOR_GAP_M_S if clear.any() else math.inf
 
     def _look_direction(
         self, pose: Pose, goal_rad: float, chosen_rad: float, buffer_m: float
