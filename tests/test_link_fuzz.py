@@ -132,10 +132,14 @@ def test_damage_loses_only_the_frames_it_hit_and_what_it_swallowed(
     clean_ids: list[int] = []
     must_arrive: list[int] = []
     damaged = 0
+    started = 0
     survivors: set[bytes] = set()
     for index, (victim, mutations) in enumerate(zip(victims, damage, strict=True)):
         hit = _mutate(victim, mutations)
         damaged += hit != victim
+        # A damaged frame that still begins with the MAVLink 2 magic is one the parser tries;
+        # one whose start was cut away is bytes it skips while it looks for a frame.
+        started += hit != victim and hit[:1] == victim[:1]
         if victim in hit:
             survivors.add(victim)
         stream += hit
@@ -166,9 +170,10 @@ def test_damage_loses_only_the_frames_it_hit_and_what_it_swallowed(
     assert len(others) == len(set(others)) and set(others) <= survivors
     whole = [v for v, m in zip(victims, damage, strict=True) if not m]
     assert set(whole) <= set(others), "an undamaged frame was lost"
-    # Each damaged frame leaves something counted: bad bytes, or an id made up.
+    # Each damaged frame the parser tried leaves something counted: bad bytes, or an id made
+    # up.
     made_up = len(decoded) - len(known)
-    assert link.parse_errors + link.signature_rejects + made_up >= damaged
+    assert link.parse_errors + link.signature_rejects + made_up >= started
 
 
 def test_an_unmutated_stream_decodes_completely() -> None:
