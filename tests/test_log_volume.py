@@ -6,18 +6,22 @@ import asyncio
 import logging
 import os
 import shutil
+import socket
 import subprocess
 import sys
 from pathlib import Path
+from typing import Any
 
 import cv2
 import numpy as np
 import pytest
 
+from avoidd.config.connection import parse_connection
 from avoidd.daemon import Daemon
 from avoidd.daemon.head import LOST_AFTER_BROKEN
 from avoidd.loading import load_all
 from avoidd.logrepeat import RepeatLimiter
+from avoidd.mavlink.transport import create_transport
 from tests.helpers import REPO, open_udp_peer, synthetic_config, wait_for
 
 
@@ -123,3 +127,43 @@ def test_opencv_warnings_are_silenced_at_start(tmp_path: Path) -> None:
         [sys.executable, "-c", already_loaded], env=env, capture_output=True, text=True, check=True
     )
     assert again.stderr.count("gone.png") == 1
+
+
+def _closed_tcp_port() -> int:
+    with socket.socket() as probe:
+        probe.bind(("127.0.0.1", 0))
+        return int(probe.getsockname()[1])
+
+
+async def test_tcp_connect_failures_are_said_once_per_state(
+    caplog: pytest.LogCaptureFixture,
+) -> None:
+    caplog.set_level(logging.INFO, logger="avoidd.mavlink.transport")
+    port = _closed_tcp_port()
+    transport: Any = create_transport(parse_connection(f"tcp:127.0.0.1:{port}"), lambda _: None)
+    await transport.open()
+    server = None
+    try:
+        assert await wait_for(lambda: transport.connect_failures >= 8, 20.0)
+        refused = [r for r in caplog.records if "cannot connect" in r.getMessage()]
+        assert len(refused) == 1 and refused[0].levelno == logging.INFO
+        assert "connection refused" in refused[0].getMessage()
+        server = await asyncio.start_server(lambda r, w: None, "127.0.0.1", port)
+        assert await wait_for(lambda: transport.connected, 20.0)
+    finally:
+        await transport.close()
+        if server is not None:
+            server.close()
+    lines = [r.getMessage() for r in caplog.records]
+    assert sum("repeated" in line and "connection refused" in line for line in lines) == 1
+    assert sum(line.endswith(": connected") for line in lines) == 1
+
+    caplog.clear()
+    unknown: Any = create_transport(parse_connection("tcp:no-such-host.invalid:5760"), print)
+    await unknown.open()
+    try:
+        assert await wait_for(lambda: unknown.connect_failures >= 3, 30.0)
+    finally:
+        await unknown.close()
+    lines = [r.getMessage() for r in caplog.records if "cannot connect" in r.getMessage()]
+    assert len(lines) == 1 and "unknown host" in lines[0], lines
