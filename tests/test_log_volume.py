@@ -21,6 +21,7 @@ from avoidd.daemon import Daemon
 from avoidd.daemon.head import LOST_AFTER_BROKEN
 from avoidd.loading import load_all
 from avoidd.logrepeat import RepeatLimiter
+from avoidd.mavlink import codec as mav
 from avoidd.mavlink.transport import create_transport
 from tests.helpers import REPO, open_udp_peer, synthetic_config, wait_for
 
@@ -167,3 +168,16 @@ async def test_tcp_connect_failures_are_said_once_per_state(
         await unknown.close()
     lines = [r.getMessage() for r in caplog.records if "cannot connect" in r.getMessage()]
     assert len(lines) == 1 and "unknown host" in lines[0], lines
+
+
+def test_pymavlink_signing_notes_are_counted_not_logged(caplog: pytest.LogCaptureFixture) -> None:
+    caplog.set_level(logging.DEBUG)
+    sender, receiver = mav.Codec(1, 1), mav.Codec(7, 196)
+    sender.enable_signing(bytes(range(32)), 1_000_000, lambda _: False)
+    receiver.enable_signing(bytes(32), 1_000_000, lambda _: False)
+    before = mav.PYMAVLINK_NOTES.counts["sig mismatch"]
+    data = b"".join(sender.pack(sender.heartbeat(4)) for _ in range(300))
+    assert receiver.decode(data) == []
+    assert receiver.signature_rejects == 300
+    assert mav.PYMAVLINK_NOTES.counts["sig mismatch"] - before == 300
+    assert [r for r in caplog.records if r.name.startswith("pymavlink")] == []
