@@ -80,9 +80,12 @@ async def test_deleted_input_folder_is_reported_once_as_camera_lost(
         assert await wait_for(lambda: bool(daemon.heads), 20.0)
         head = daemon.heads[0]
         assert await wait_for(lambda: head.stats.captured >= 6, 20.0)
-        shutil.rmtree(recording)
+        # Moved away at once and back at once: no frame sees half a folder or half a file.
+        recording.rename(tmp_path / "gone")
+        shutil.rmtree(tmp_path / "gone")
         assert await wait_for(lambda: head.stats.broken >= 60, 20.0), head.stats
-        _write_pairs(recording, 4)
+        _write_pairs(tmp_path / "new", 4)
+        (tmp_path / "new").rename(recording)
         captured = head.stats.captured
         assert await wait_for(lambda: head.stats.captured > captured + 3, 20.0)
         assert await wait_for(
@@ -93,7 +96,7 @@ async def test_deleted_input_folder_is_reported_once_as_camera_lost(
         assert await asyncio.wait_for(task, timeout=10.0) == 0
         peer.close()
     head_lines = [r.getMessage() for r in caplog.records if r.name == "avoidd.daemon.head"]
-    missing = [line for line in head_lines if "missing" in line]
+    missing = [line for line in head_lines if "dropped" in line]
     # 60+ unreadable frames: the first is logged, the rest summarised when frames come back.
     assert len(missing) == 2, head_lines
     assert "repeated" in missing[1]

@@ -207,6 +207,7 @@ class Head:
             self.arrival_age_ns = arrived_ns - frame.t_capture_ns
             self.last_frame_ns = arrived_ns
             self.slot.put(frame)
+        self._capture_log.clear()  # the repeats not yet summarised
         if source is not None:
             with contextlib.suppress(Exception):
                 source.close()
