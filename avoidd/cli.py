@@ -25,6 +25,22 @@ def _setup_logging(level: str) -> None:
     else:
         fmt = "%(asctime)s %(levelname)s %(name)s: %(message)s"
     logging.basicConfig(level=getattr(logging, level), format=fmt, stream=sys.stderr)
+    _quiet_opencv()
+
+
+def _quiet_opencv() -> None:
+    """Keep OpenCV's own warnings out of the log unless ``OPENCV_LOG_LEVEL`` asks for them.
+
+    OpenCV prints to stderr by itself, per call: two lines for every unreadable image, which a
+    missing input folder turns into two lines per frame. avoidd reports such faults itself.
+    The variable is read when OpenCV first logs; if it is already loaded, its level is set too.
+    """
+    if "OPENCV_LOG_LEVEL" in os.environ:
+        return
+    os.environ["OPENCV_LOG_LEVEL"] = "ERROR"
+    cv2 = sys.modules.get("cv2")
+    if cv2 is not None:
+        cv2.utils.logging.setLogLevel(cv2.utils.logging.LOG_LEVEL_ERROR)
 
 
 def build_parser(chosen: str | None = None) -> argparse.ArgumentParser:

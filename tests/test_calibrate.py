@@ -228,8 +228,8 @@ def test_euroc_sequence_rectifies_below_one_pixel(data_dir: Path, tmp_path: Path
     args = ["check-rectification", "--calibration", str(out), str(mav0), "--max-pairs", "10"]
     assert main([*args, "--json", str(figures_json)]) == 0
     figures = json.loads(figures_json.read_text())
-    assert figures["matches"] > 300
-    assert figures["mean"] < 1.0 and figures["median"] < 0.5, figures
+    assert figures["matches"] > 300 and figures["board_pairs"] == 0
+    assert figures["mean"] < 0.5 and figures["median"] < 0.3, figures
 
     # The check has teeth: the same rig with the right camera rolled by half a degree fails it.
     model = euroc_stereo(mav0 / "cam0" / "sensor.yaml", mav0 / "cam1" / "sensor.yaml")
@@ -238,5 +238,72 @@ def test_euroc_sequence_rectifies_below_one_pixel(data_dir: Path, tmp_path: Path
     from avoidd.vision.calibration import write_calibration
 
     write_calibration(out, tilted)
-    assert main([*args, "--json", str(figures_json)]) == 0
+    assert main([*args, "--json", str(figures_json)]) == 1
     assert json.loads(figures_json.read_text())["mean"] > 1.0
+
+
+def _rolled(path: Path, out: Path, degrees: float) -> None:
+    """Write the calibration at ``path`` with its right camera rolled by ``degrees``."""
+    from avoidd.vision.calibration import write_calibration
+
+    model = StereoModel.model_validate(__import__("yaml").safe_load(path.read_text())["stereo"])
+    roll, _ = cv2.Rodrigues(np.array([0.0, 0.0, np.radians(degrees)]))
+    write_calibration(
+        out, model.model_copy(update={"R": tuple(map(tuple, roll @ np.asarray(model.R)))})
+    )
+
+
+def test_check_rectification_verdict_on_rendered_board_pairs(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    folder, good, wrong = tmp_path / "shots", tmp_path / "calib.yaml", tmp_path / "rolled.yaml"
+    write_pairs(folder, CHESS, default_rig(), 10, seed=3)
+    assert main(["calibrate", str(folder), "--square-mm", "50", "--out", str(good)]) == 0
+    figures_json = tmp_path / "dy.json"
+    capsys.readouterr()
+
+    # The board's own corners: every pair shows it, so every pair is measured on them.
+    assert (
+        main(
+            [
+                "check-rectification",
+                "--calibration",
+                str(good),
+                str(folder),
+                "--json",
+                str(figures_json),
+            ]
+        )
+        == 0
+    )
+    figures = json.loads(figures_json.read_text())
+    assert figures["board_pairs"] == 10 and figures["mean"] < 0.15, figures
+    assert "PASS" in capsys.readouterr().out
+
+    # Another board size is not found: features alone, whose repeated corners must not be paired
+    # with their neighbours (they gave a mean |dy| of several pixels).
+    other_board = ["--squares", "9x4"]
+    assert (
+        main(
+            [
+                "check-rectification",
+                "--calibration",
+                str(good),
+                str(folder),
+                *other_board,
+                "--json",
+                str(figures_json),
+            ]
+        )
+        == 0
+    )
+    figures = json.loads(figures_json.read_text())
+    assert figures["board_pairs"] == 0 and figures["matches"] > 100
+    assert figures["mean"] < 0.5 and figures["median"] < 0.1, figures
+
+    # A calibration with the right camera rolled by one degree fails, on the board and without.
+    _rolled(good, wrong, 1.0)
+    capsys.readouterr()
+    for extra in ([], other_board):
+        assert main(["check-rectification", "--calibration", str(wrong), str(folder), *extra]) == 1
+        assert "FAIL: mean |dy|" in capsys.readouterr().out

@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import math
 import re
+import shutil
 import subprocess
 import sys
 import types
@@ -13,10 +14,12 @@ from typing import Any
 import cv2
 import numpy as np
 import pytest
+import yaml
 
 from avoidd.calibrate.board import Board
 from avoidd.calibrate.render import BoardRenderer, default_rig, sample_poses
 from avoidd.cli import main
+from avoidd.commands.measure import format_optical_axis
 from avoidd.config import PerceptionConfig, load_config
 from avoidd.errors import MeasureError
 from avoidd.perception.measure import (
@@ -255,14 +258,46 @@ def test_calibrate_mount_command_recovers_the_rendered_mount(
     assert done.returncode == 0, done.stderr
     fit = _FIT.search(done.stdout)
     assert fit is not None, done.stdout
-    # Stereo on slanted ground reads disparity about 0.1 px low, which tilts the fitted plane:
-    # the pitch comes out about 0.3 degrees shallow at this writing.
-    assert float(fit["h"]) == pytest.approx(height_m, abs=0.01)
-    assert float(fit["p"]) == pytest.approx(pitch_deg, abs=0.5)
+    # Subpixel-refined disparity and a fit in disparity: height within 1 %, pitch within 0.3 deg.
+    assert float(fit["h"]) == pytest.approx(height_m, rel=0.01)
+    assert float(fit["p"]) == pytest.approx(pitch_deg, abs=0.3)
     assert abs(float(fit["r"])) < 0.2
-    body = re.search(r"ground: \{height_m: (?P<h>[\d.]+)\}", done.stdout)
+    body = re.search(r"ground: \{height_m: (?P<h>[\d.]+), margin_m: [\d.]+\}", done.stdout)
     assert body is not None
     assert float(body["h"]) == pytest.approx(float(fit["h"]) + 0.1, abs=0.0011)
+
+
+def test_calibrate_mount_on_the_demo_is_accurate_and_its_lines_pass_check_config(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    # The demo: a synthetic camera 1.5 m up, pitch 0 (it read 1.470 m, +0.83 deg, "OP = inf m").
+    config = tmp_path / "demo.yaml"
+    shutil.copy(REPO / "config" / "demo.yaml", config)
+    shutil.copytree(REPO / "config" / "calibration", tmp_path / "calibration")
+    assert main(["calibrate-mount", "--config", str(config)]) == 0
+    printed = capsys.readouterr().out
+    fit = _FIT.search(printed)
+    assert fit is not None, printed
+    assert float(fit["h"]) == pytest.approx(1.5, rel=0.01)
+    assert float(fit["p"]) == pytest.approx(0.0, abs=0.3)
+    assert "inf" not in printed and "never meets the ground" in printed
+
+    # The suggested lines replace the head's mount and perception.ground; check-config accepts.
+    suggested = printed.split("perception.ground):\n", 1)[1]
+    lines = yaml.safe_load(suggested)
+    data = yaml.safe_load(config.read_text())
+    data["heads"][0]["mount"] = lines["mount"]
+    data["perception"]["ground"] = lines["ground"]
+    config.write_text(yaml.safe_dump(data))
+    assert main(["check-config", str(config)]) == 0, capsys.readouterr()
+
+
+def test_optical_axis_text_never_prints_infinity() -> None:
+    assert "OP = 1.50 m" in format_optical_axis(1.5, -45.0)
+    assert "never meets the ground" in format_optical_axis(1.5, 0.0)
+    assert "never meets the ground" in format_optical_axis(1.5, 3.0)
+    far = format_optical_axis(1.5, -0.01)
+    assert "too far to measure" in far and "inf" not in far
 
 
 @pytest.mark.parametrize(

@@ -12,7 +12,7 @@ import cv2
 import numpy as np
 
 from avoidd.calibrate.board import Board, detect
-from avoidd.calibrate.check import matched_dy_px, rectify_pair
+from avoidd.calibrate.check import board_dy_px, matched_dy_px, rectify_pair, valid_masks
 from avoidd.calibrate.importers import euroc_stereo, middlebury_rectified
 from avoidd.calibrate.render import default_rig, write_pairs
 from avoidd.calibrate.stereo import (
@@ -22,14 +22,14 @@ from avoidd.calibrate.stereo import (
     calibrate,
     observe_pair,
 )
-from avoidd.commands import EXIT_OK
+from avoidd.commands import EXIT_FAILURE, EXIT_OK
 from avoidd.errors import ConfigError, SourceError
 from avoidd.progress import Progress
 from avoidd.sources.files import list_pairs
 from avoidd.types import Image
 from avoidd.vision.calibration import load_calibration, write_calibration
 
-# The rectification check warns above this mean |dy| of matched corners.
+# The rectification check warns (calibrate) or fails (check-rectification) above this mean |dy|.
 DY_WARN_PX = 0.5
 
 
@@ -70,6 +70,13 @@ def configure(name: str, parser: argparse.ArgumentParser) -> None:
         )
         parser.add_argument("--max-pairs", type=int, default=20, help="pairs to sample")
         parser.add_argument("--json", type=Path, help="also write the figures as JSON")
+        parser.add_argument(
+            "--max-dy-px",
+            type=float,
+            default=DY_WARN_PX,
+            help=f"FAIL above this mean |dy|, px (default {DY_WARN_PX})",
+        )
+        _add_board_options(parser)
         parser.set_defaults(handler=_cmd_check_rectification)
 
 
@@ -94,10 +101,17 @@ def _cmd_import_calibration(args: argparse.Namespace) -> int:
 
 
 def _cmd_check_rectification(args: argparse.Namespace) -> int:
-    figures = run_check(args.calibration, args.folder, args.max_pairs)
+    figures = run_check(args.calibration, args.folder, args.max_pairs, _board(args))
     if args.json is not None:
         args.json.write_text(json.dumps(figures, indent=2) + "\n")
-    return EXIT_OK
+    if figures["mean"] <= args.max_dy_px:
+        print(f"PASS: mean |dy| {figures['mean']:.3f} px <= {args.max_dy_px} px")
+        return EXIT_OK
+    print(
+        f"FAIL: mean |dy| {figures['mean']:.3f} px > {args.max_dy_px} px; the calibration does not "
+        "rectify these images: check it belongs to this camera and resolution, or recalibrate"
+    )
+    return EXIT_FAILURE
 
 
 def parse_grid(text: str, what: str) -> tuple[int, int]:
@@ -250,11 +264,17 @@ def stereo_folder_pairs(folder: Path) -> Iterator[tuple[str, Path, Path]]:
         yield pair.left.name, pair.left, pair.right
 
 
-def run_check(calibration_path: Path, folder: Path, max_pairs: int) -> dict[str, float]:
-    """Rectify image pairs with a calibration and measure |dy| of matched features.
+def run_check(
+    calibration_path: Path, folder: Path, max_pairs: int, board: Board | None = None
+) -> dict[str, float]:
+    """Rectify image pairs with a calibration and measure |dy| of unambiguous matches.
+
+    A pair showing ``board`` in both views is measured on the board's corners, paired by id;
+    any other pair on features matched by descriptor (see ``matched_dy_px``).
 
     Returns:
-        ``pairs``, ``matches``, and |dy| ``mean``, ``median``, ``p95`` in pixels.
+        ``pairs``, ``board_pairs`` (pairs measured on the board), ``matches``, and |dy| ``mean``,
+        ``median``, ``p95`` in pixels.
     """
     calibration = load_calibration(calibration_path)
     pairs = list(stereo_folder_pairs(folder))
@@ -264,23 +284,35 @@ def run_check(calibration_path: Path, folder: Path, max_pairs: int) -> dict[str,
     chosen = pairs[::step][:max_pairs]
     max_disparity_px = 0.5 * calibration.rig.width
     values = []
+    board_pairs = 0
     progress = Progress(len(chosen))
+    masks: tuple[Image, Image] | None = None
     for name, left, right in chosen:
-        left_r, right_r = rectify_pair(calibration, _grey(left), _grey(right))
-        values.append(matched_dy_px(left_r, right_r, max_disparity_px))
+        left_raw = _grey(left)
+        if masks is None:
+            masks = valid_masks(calibration, left_raw.shape)
+        left_r, right_r = rectify_pair(calibration, left_raw, _grey(right))
+        on_board = None if board is None else board_dy_px(board, left_r, right_r)
+        if on_board is not None:
+            board_pairs += 1
+            values.append(on_board)
+        else:
+            values.append(matched_dy_px(left_r, right_r, max_disparity_px, masks))
         progress.step(name)
     dy = np.concatenate(values)
     if dy.size == 0:
         raise SourceError(f"{folder}: no features matched across the views; is it textured?")
     figures = {
         "pairs": float(len(chosen)),
+        "board_pairs": float(board_pairs),
         "matches": float(dy.size),
         "mean": float(dy.mean()),
         "median": float(np.median(dy)),
         "p95": float(np.percentile(dy, 95)),
     }
     print(
-        f"{len(chosen)} pairs, {dy.size} matched features: rectified |dy| mean "
+        f"{len(chosen)} pairs ({board_pairs} measured on the board's corners), {dy.size} "
+        "matches: rectified |dy| mean "
         f"{figures['mean']:.3f} px, median {figures['median']:.3f} px, "
         f"95th percentile {figures['p95']:.3f} px"
     )

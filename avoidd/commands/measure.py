@@ -26,6 +26,8 @@ from avoidd.sources import open_source
 from avoidd.vision.calibration import Calibration
 
 _ROLL_WARN_DEG = 2.0
+# An optical axis meeting the ground farther than this gives no OP anyone can measure.
+_OP_FAR_M = 100.0
 
 
 def configure(name: str, parser: argparse.ArgumentParser) -> None:
@@ -104,13 +106,18 @@ def run_calibrate_mount(args: argparse.Namespace) -> int:
         raise ConfigError(["give --config (fit flat ground) or --height-m and --op-m"])
     config, calibrations = load_all(args.config, input_given=args.input is not None)
     head = select_head(config, args.head)
+    # Refine disparity to subpixel whatever the config says: without it SGBM reads sloping ground
+    # 0.1-0.25 px low, enough to tilt the fitted plane by half a degree (0.58 deg on the demo).
+    measuring = head.model_copy(
+        update={"postprocess": head.postprocess.model_copy(update={"subpixel_refine": True})}
+    )
     pipeline, results = process_frames(
-        config, head, calibrations[head.name], args.input, 0, args.frames
+        config, measuring, calibrations[head.name], args.input, 0, args.frames
     )
     rig = pipeline.work_rig
     # Within 0.1 f B one pixel of disparity is at most 10% of depth.
     fit = fit_mount([r.depth_m for r in results], rig, 0.1 * rig.fx * rig.baseline_m)
-    print(format_mount_fit(fit, head.mount.position_m[2]))
+    print(format_mount_fit(fit, head, config.perception.ground.margin_m))
     return EXIT_OK
 
 
@@ -173,22 +180,60 @@ def format_measurement(m: Measurement, geometry: CameraGeometry) -> str:
     return "\n".join(lines)
 
 
-def format_mount_fit(fit: MountFit, position_down_m: float) -> str:
-    """The lines ``avoidd calibrate-mount`` prints for a ground-plane fit."""
-    tilt = math.radians(-fit.pitch_deg)
-    op = fit.height_m / math.tan(tilt) if tilt > 1e-6 else math.inf
-    return "\n".join(
-        [
-            f"ground plane: {fit.points} points, {fit.plane.inlier_fraction:.0%} inliers, "
-            f"RMS {fit.plane.rms_m * 100:.1f} cm",
-            f"camera height {fit.height_m:.3f} m, pitch {fit.pitch_deg:+.2f} deg, "
-            f"roll {fit.roll_deg:+.2f} deg (vehicle assumed level)",
-            f"paper's check: the optical axis meets the ground at OP = {op:.2f} m",
-            "config:",
-            f"  mount: {{pitch_deg: {fit.pitch_deg:.2f}, roll_deg: {fit.roll_deg:.2f}}}",
-            f"  perception: {{ground: {{height_m: {fit.height_m + position_down_m:.3f}}}}}",
-        ]
-    )
+def format_optical_axis(height_m: float, pitch_deg: float) -> str:
+    """Where the optical axis meets the ground (the paper's OP), in words when it does not."""
+    tilt = math.radians(-pitch_deg)
+    if tilt <= 0.0:
+        return (
+            f"paper's check: the optical axis points {pitch_deg:+.2f} deg, level or above the "
+            "horizon, so it never meets the ground: there is no OP to measure (tilt the camera "
+            "down to use the h/OP check)"
+        )
+    op_m = height_m / math.tan(tilt)
+    if op_m > _OP_FAR_M:
+        return (
+            f"paper's check: the optical axis is only {-pitch_deg:.2f} deg below the horizon and "
+            f"meets the ground about {op_m:.0f} m away, too far to measure OP with a tape"
+        )
+    return f"paper's check: the optical axis meets the ground at OP = {op_m:.2f} m"
+
+
+def format_mount_fit(fit: MountFit, head: HeadConfig, margin_m: float) -> str:
+    """The lines ``avoidd calibrate-mount`` prints for a ground-plane fit.
+
+    The suggested config lines are whole mappings (yaw and position kept from ``head``) that can
+    replace the head's ``mount`` and ``perception.ground``. A synthetic source renders its camera
+    at the scene's pitch and no roll, and the loader holds the mount to that, so for one the fit
+    is compared with the scene and the mount line keeps the scene's pitch.
+    """
+    mount = head.mount
+    position = ", ".join(f"{value:g}" for value in mount.position_m)
+    body_height_m = fit.height_m + mount.position_m[2]
+    lines = [
+        f"ground plane: {fit.points} points, {fit.plane.inlier_fraction:.0%} inliers, "
+        f"RMS {fit.plane.rms_m * 100:.1f} cm",
+        f"camera height {fit.height_m:.3f} m, pitch {fit.pitch_deg:+.2f} deg, "
+        f"roll {fit.roll_deg:+.2f} deg (vehicle assumed level)",
+        format_optical_axis(fit.height_m, fit.pitch_deg),
+    ]
+    pitch_deg, roll_deg = fit.pitch_deg, fit.roll_deg
+    if head.source.kind == "synthetic":
+        scene = head.source
+        lines.append(
+            f"synthetic scene: camera height {scene.camera_height_m:.3f} m, pitch "
+            f"{scene.camera_pitch_deg:+.2f} deg; the fit is off by "
+            f"{fit.height_m - scene.camera_height_m:+.3f} m and "
+            f"{fit.pitch_deg - scene.camera_pitch_deg:+.2f} deg (the mount must keep the scene's "
+            "pitch and no roll)"
+        )
+        pitch_deg, roll_deg = scene.camera_pitch_deg, 0.0
+    lines += [
+        f"config (heads.{head.name}.mount and perception.ground):",
+        f"  mount: {{yaw_deg: {mount.yaw_deg:g}, pitch_deg: {pitch_deg:.2f}, "
+        f"roll_deg: {roll_deg:.2f}, position_m: [{position}]}}",
+        f"  ground: {{height_m: {body_height_m:.3f}, margin_m: {margin_m:g}}}",
+    ]
+    return "\n".join(lines)
 
 
 def format_manual_mount(height_m: float, op_m: float) -> str:

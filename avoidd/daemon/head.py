@@ -15,6 +15,7 @@ from typing import Protocol
 
 from avoidd.config import HeadConfig, PerceptionConfig, SourceConfig
 from avoidd.errors import BrokenFrame, SourceError, SourceExhausted
+from avoidd.logrepeat import RepeatLimiter
 from avoidd.mavlink import codec as mav
 from avoidd.mavlink.vehicle import Announce
 from avoidd.perception.temporal import SectorFilter
@@ -28,6 +29,8 @@ logger = logging.getLogger(__name__)
 
 _BACKOFF_MIN_S = 0.5
 _BACKOFF_MAX_S = 10.0
+# This many unreadable frames in a row and the camera is lost: no usable frames arrive.
+LOST_AFTER_BROKEN = 5
 
 
 class OpenSource(Protocol):
@@ -102,6 +105,10 @@ class Head:
         self._stop = stop
         self._announce = announce
         self._thread = threading.Thread(target=self._capture, name=f"capture-{self.name}")
+        self._capture_log = RepeatLimiter(logger)
+        self._compute_log = RepeatLimiter(logger)
+        self._broken_in_row = 0
+        self._lost_to_broken = False
 
     @property
     def t_capture_ns(self) -> int | None:
@@ -138,7 +145,9 @@ class Head:
                     source = self._open()
                 except SourceError as exc:
                     self.stats.source_errors += 1
-                    logger.error("%s; retrying in %.1f s", exc, backoff_s)
+                    self._capture_log.report(
+                        logging.ERROR, "open failed", f"{exc}; retrying with backoff"
+                    )
                     if not lost:
                         self._announce(
                             mav.MAV_SEVERITY_CRITICAL,
@@ -163,13 +172,14 @@ class Head:
                         f"camera {self.name}",
                     )
                     lost = False
+                self._capture_log.clear()
                 logger.info("head '%s': reading %s", self.name, source.description)
                 backoff_s = low_s
             try:
                 frame = source.read()
             except BrokenFrame as exc:
                 self.stats.broken += 1
-                logger.warning("%s", exc)
+                self._frame_broken(exc)
                 continue
             except SourceExhausted:
                 logger.warning("head '%s': %s ended; no more data", self.name, source.description)
@@ -191,14 +201,45 @@ class Head:
                 self._stop.wait(backoff_s)
                 backoff_s = min(backoff_s * 2, high_s)
                 continue
+            self._frame_good()
             self.stats.captured += 1
             arrived_ns = time.monotonic_ns()
             self.arrival_age_ns = arrived_ns - frame.t_capture_ns
             self.last_frame_ns = arrived_ns
             self.slot.put(frame)
+        self._capture_log.clear()  # the repeats not yet summarised
         if source is not None:
             with contextlib.suppress(Exception):
                 source.close()
+
+    def _frame_broken(self, exc: BrokenFrame) -> None:
+        """Log an unreadable frame once per run of them; a long run means the camera is lost."""
+        self._broken_in_row += 1
+        self._capture_log.report(logging.WARNING, "broken frames", f"head '{self.name}': {exc}")
+        if self._broken_in_row == LOST_AFTER_BROKEN and not self._lost_to_broken:
+            self._lost_to_broken = True
+            logger.error(
+                "head '%s': camera lost: %d frames in a row unreadable; check the source",
+                self.name,
+                self._broken_in_row,
+            )
+            self._announce(
+                mav.MAV_SEVERITY_CRITICAL, f"avoidd: {self.name} camera lost", f"camera {self.name}"
+            )
+
+    def _frame_good(self) -> None:
+        """A usable frame arrived: end a run of unreadable ones."""
+        if self._broken_in_row:
+            self._capture_log.clear(
+                f"head '{self.name}': frames readable again after {self._broken_in_row} "
+                "unreadable ones"
+            )
+            self._broken_in_row = 0
+        if self._lost_to_broken:
+            self._lost_to_broken = False
+            self._announce(
+                mav.MAV_SEVERITY_NOTICE, f"avoidd: {self.name} camera back", f"camera {self.name}"
+            )
 
     async def compute(self) -> None:
         """Compute task: process the newest frame in a worker thread, keep the latest result."""
@@ -209,12 +250,13 @@ class Head:
                 result = await asyncio.to_thread(self.pipeline.process, frame, pose)
             except BrokenFrame as exc:
                 self.stats.broken += 1
-                logger.warning("%s", exc)
+                self._compute_log.report(logging.WARNING, "broken", f"head '{self.name}': {exc}")
                 continue
             except Exception:
                 self.stats.broken += 1
                 logger.exception("head '%s': frame %d failed", self.name, frame.seq)
                 continue
+            self._compute_log.clear()
             went_back = self.latest is not None and result.t_capture_ns <= self.latest.t_capture_ns
             if went_back or frame.restarts != self._restarts_seen:
                 # The source started over (a looping recording): what the filter holds is of

@@ -7,7 +7,9 @@ per link (its sender) may call it.
 
 from __future__ import annotations
 
+import logging
 import os
+from collections import Counter
 from collections.abc import Callable, Iterable
 from typing import Any
 
@@ -16,6 +18,34 @@ os.environ["MAVLINK20"] = "1"
 from pymavlink.dialects.v20 import ardupilotmega as dialect
 
 from avoidd.mavlink.signing import SIGNING_KEY_BYTES, wall_timestamp
+
+
+class _PacketNotes(logging.Filter):
+    """Drops and counts pymavlink's per-packet INFO lines ('sig mismatch', 'old timestamp').
+
+    pymavlink logs one of these for every packet its signing check refuses or notes: a peer
+    with a wrong key made 700 lines in 11 s. avoidd counts the refused messages itself
+    (``signature_rejects``, in the periodic stats line); here only their kinds are counted.
+    Warnings and errors pass.
+
+    Attributes:
+        counts: Lines dropped, by pymavlink's message template.
+    """
+
+    def __init__(self) -> None:
+        super().__init__()
+        self.counts: Counter[str] = Counter()
+
+    def filter(self, record: logging.LogRecord) -> bool:
+        if record.levelno > logging.INFO:
+            return True
+        self.counts[str(record.msg)] += 1
+        return False
+
+
+PYMAVLINK_NOTES = _PacketNotes()
+"""The filter on pymavlink's dialect logger (also used by ``mavutil`` connections)."""
+logging.getLogger(dialect.__name__).addFilter(PYMAVLINK_NOTES)
 
 MAV_TYPE_ONBOARD_CONTROLLER = int(dialect.MAV_TYPE_ONBOARD_CONTROLLER)
 MAV_TYPE_GCS = int(dialect.MAV_TYPE_GCS)

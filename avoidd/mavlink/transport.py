@@ -6,6 +6,7 @@ import asyncio
 import contextlib
 import logging
 import os
+import socket
 import termios
 import tty
 from collections.abc import Callable
@@ -14,6 +15,7 @@ from typing import Any, Protocol
 from avoidd.aio import cancel_task
 from avoidd.config.connection import STANDARD_BAUDS, LinkSpec
 from avoidd.errors import LinkError
+from avoidd.logrepeat import RepeatLimiter
 
 logger = logging.getLogger(__name__)
 
@@ -25,6 +27,8 @@ SenderCallback = Callable[[bytes, Sender], None]
 """Called with every chunk of received bytes and its sender."""
 
 _MAX_WRITE_BUFFER = 64 * 1024
+# A TCP client retries a failed connect after at most this long.
+_TCP_RETRY_MAX_S = 0.5
 
 
 class Transport(Protocol):
@@ -156,6 +160,19 @@ async def _pump(reader: asyncio.StreamReader, on_receive: SenderCallback, spec: 
         logger.debug("MAVLink %s: read failed (%s)", spec, exc)
 
 
+def _connect_failure(exc: BaseException) -> tuple[str, str]:
+    """Why a TCP connect failed, in a few words (the state), and what to check."""
+    if isinstance(exc, socket.gaierror):
+        return "unknown host", "check the host name in mavlink.connection"
+    if isinstance(exc, ConnectionRefusedError):
+        return "connection refused", "is the autopilot, SITL or router listening on that port?"
+    if isinstance(exc, TimeoutError):
+        return "no answer", "is the host up and the port not firewalled?"
+    return (exc.strerror if isinstance(exc, OSError) and exc.strerror else str(exc)), (
+        "check the address in mavlink.connection"
+    )
+
+
 class _TcpClient:
     """TCP client that keeps reconnecting with backoff while the peer is away."""
 
@@ -164,7 +181,9 @@ class _TcpClient:
         self._on_receive = on_receive
         self._writer: asyncio.StreamWriter | None = None
         self._task: asyncio.Task[None] | None = None
+        self._failures_log = RepeatLimiter(logger)
         self.reconnects = 0
+        self.connect_failures = 0
 
     @property
     def connected(self) -> bool:
@@ -181,12 +200,20 @@ class _TcpClient:
                     asyncio.open_connection(self._spec.host, self._spec.port), timeout=2.0
                 )
             except (OSError, TimeoutError) as exc:
-                logger.debug("MAVLink %s: connect failed (%s)", self._spec, exc)
+                self.connect_failures += 1
+                why, hint = _connect_failure(exc)
+                self._failures_log.report(
+                    logging.INFO,
+                    why,
+                    f"MAVLink {self._spec}: cannot connect ({why}); {hint}; retrying every "
+                    f"{_TCP_RETRY_MAX_S:g} s",
+                )
                 await asyncio.sleep(backoff_s)
-                backoff_s = min(backoff_s * 2, 0.5)
+                backoff_s = min(backoff_s * 2, _TCP_RETRY_MAX_S)
                 continue
             backoff_s = 0.1
             self._writer = writer
+            self._failures_log.clear()
             logger.info("MAVLink %s: connected", self._spec)
             try:
                 await _pump(reader, self._on_receive, self._spec)

@@ -12,6 +12,10 @@ from avoidd.perception.frames import Pose, depth_to_frame
 from avoidd.perception.ground import Plane, fit_plane
 from avoidd.types import FloatArray, RectifiedRig
 
+# Robust refit in disparity: Tukey weights reach zero at this residual; this many reweightings.
+_TUKEY_PX = 1.0
+_IRLS_STEPS = 8
+
 
 @dataclass(frozen=True)
 class MountFit:
@@ -30,6 +34,52 @@ class MountFit:
     pitch_deg: float
     roll_deg: float
     points: int
+
+
+def _refine_in_disparity(
+    depths_m: list[FloatArray], rig: RectifiedRig, max_depth_m: float, plane: Plane
+) -> Plane:
+    """Refit a ground plane where stereo's noise is even: in disparity, not in metres.
+
+    A plane ``n . p = h`` seen by a rectified rig has disparity (plus ``doffs``) linear in the
+    normalised image coordinates: ``fx B / Z = (fx B / h) (nx xn + ny yn + nz)``. Disparity
+    errors are about the same number of pixels near and far, whereas their depth errors grow
+    with the square of depth, so a least-squares fit in metres lets far points tilt the plane.
+    The points near the RANSAC plane are refitted in disparity with robust (Tukey) weights.
+    """
+    focal_baseline = rig.fx * rig.baseline_m
+    rows: list[FloatArray] = []
+    for depth in depths_m:
+        v, u = np.mgrid[0 : depth.shape[0] : 2, 0 : depth.shape[1] : 2]
+        z = depth[::2, ::2].astype(np.float64)
+        keep = np.isfinite(z) & (z > 0) & (z < max_depth_m)
+        xn = (u[keep] - rig.cx) / rig.fx
+        yn = (v[keep] - rig.cy) / rig.fy
+        rows.append(np.stack([xn, yn, np.ones_like(xn), focal_baseline / z[keep]], axis=1))
+    samples = np.concatenate(rows)
+    design, disparity = samples[:, :3], samples[:, 3]
+    coefficients = focal_baseline / plane.offset_m * plane.normal.astype(np.float64)
+    weights = np.zeros(len(disparity))
+    for _ in range(_IRLS_STEPS):
+        residual_px = disparity - design @ coefficients
+        scaled = residual_px / _TUKEY_PX
+        weights = np.where(np.abs(scaled) < 1.0, (1.0 - scaled**2) ** 2, 0.0)
+        if np.count_nonzero(weights) < 3:
+            return plane
+        root = np.sqrt(weights)
+        solved = np.linalg.lstsq(design * root[:, None], disparity * root, rcond=None)[0]
+        coefficients = np.asarray(solved, np.float64)
+    length = float(np.linalg.norm(coefficients))
+    normal = coefficients / length
+    offset_m = focal_baseline / length
+    inliers = weights > 0
+    distance_m = design[inliers] @ normal * (focal_baseline / disparity[inliers]) - offset_m
+    return Plane(
+        normal.astype(plane.normal.dtype),
+        offset_m,
+        float(np.mean(inliers)) * plane.inlier_fraction,
+        float(np.sqrt(np.mean(distance_m**2))),
+    )
 
 
 def fit_mount(depths_m: list[FloatArray], rig: RectifiedRig, max_depth_m: float) -> MountFit:
@@ -66,6 +116,7 @@ def fit_mount(depths_m: list[FloatArray], rig: RectifiedRig, max_depth_m: float)
             f"only {plane.inlier_fraction:.0%} of the points lie on one plane; the view needs "
             "mostly flat ground"
         )
+    plane = _refine_in_disparity(depths_m, rig, max_depth_m, plane)
     n = plane.normal  # optical frame, pointing from the camera down to the ground
     return MountFit(
         plane,

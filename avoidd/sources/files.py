@@ -208,6 +208,11 @@ class FolderSource:
             t_capture_ns = pair.t_capture_ns
         else:
             t_capture_ns = int(seq * 1e9 / self._fps)
+        for path in (pair.left, pair.right):
+            if not path.is_file():
+                raise BrokenFrame(
+                    f"{path}: missing (was the recording moved or deleted?); frame {seq} dropped"
+                )
         left = cv2.imread(str(pair.left), cv2.IMREAD_UNCHANGED)
         right = cv2.imread(str(pair.right), cv2.IMREAD_UNCHANGED)
         if left is None or right is None:
