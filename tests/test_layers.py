@@ -36,6 +36,7 @@ LAYERS: list[tuple[str, tuple[str, ...]]] = [
             "avoidd.aio",
             "avoidd.slot",
             "avoidd.looplag",
+            "avoidd.logrepeat",
             "avoidd.progress",
         ),
     ),
