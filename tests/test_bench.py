@@ -238,3 +238,26 @@ def test_link_bench_command_runs_and_writes_json(tmp_path: Path) -> None:
     assert report["rate_asked_hz"] == 100.0 and report["parse_errors"] == 0
     assert report["received_per_s"] > 0.0
     assert f"received          {report['received_per_s']:.0f} msg/s" in done.stdout
+
+
+def test_link_bench_asked_streams_come_at_the_configured_ratio(tmp_path: Path) -> None:
+    """``bench-link --asked``: avoidd asks the mock for its streams (ATTITUDE 50 Hz,
+    LOCAL_POSITION_NED and DISTANCE_SENSOR 10 Hz, SYSTEM_TIME 1 Hz by default) and every one
+    of them arrives; the fast one five times as often as the position (a ratio, which load on
+    the machine leaves alone far better than a rate)."""
+    out = tmp_path / "asked.json"
+    done = subprocess.run(
+        [sys.executable, "-m", "avoidd", "bench-link", "--asked", "--seconds=3", f"--json={out}"],
+        cwd=REPO,
+        capture_output=True,
+        text=True,
+        timeout=90,
+        check=False,
+    )
+    assert done.returncode == 0, done.stderr
+    report = json.loads(out.read_text())
+    assert report["streams"] == "asked" and report["parse_errors"] == 0
+    rates = report["received_per_s_by_type"]
+    assert {"ATTITUDE", "LOCAL_POSITION_NED", "DISTANCE_SENSOR", "SYSTEM_TIME"} <= rates.keys()
+    assert rates["ATTITUDE"] == pytest.approx(5 * rates["LOCAL_POSITION_NED"], rel=0.3)
+    assert rates["DISTANCE_SENSOR"] == pytest.approx(rates["LOCAL_POSITION_NED"], rel=0.3)
