@@ -261,3 +261,26 @@ def test_link_bench_asked_streams_come_at_the_configured_ratio(tmp_path: Path) -
     assert {"ATTITUDE", "LOCAL_POSITION_NED", "DISTANCE_SENSOR", "SYSTEM_TIME"} <= rates.keys()
     assert rates["ATTITUDE"] == pytest.approx(5 * rates["LOCAL_POSITION_NED"], rel=0.3)
     assert rates["DISTANCE_SENSOR"] == pytest.approx(rates["LOCAL_POSITION_NED"], rel=0.3)
+
+
+def test_daemon_bench_reports_what_the_demo_daemon_sent(tmp_path: Path) -> None:
+    """``bench --daemon``: the demo daemon's scans all see the demo's obstacle, its heartbeat
+    never says BOOT once it has a result, and the figures agree with each other."""
+    out = tmp_path / "daemon.json"
+    command = ["bench", "--daemon", "config/demo.yaml", "--seconds=3", f"--json={out}"]
+    done = subprocess.run(
+        [sys.executable, "-m", "avoidd", "--log-level=ERROR", *command],
+        cwd=REPO,
+        capture_output=True,
+        text=True,
+        timeout=120,
+        check=False,
+    )
+    assert done.returncode == 0, done.stderr
+    report = json.loads(out.read_text())
+    assert report["obstacle_distance_configured_hz"] == 15.0
+    assert report["scans"] > 0
+    assert report["scans_with_obstacle_percent"] == 100.0
+    assert set(report["heartbeat_states"]) <= {"ACTIVE", "CRITICAL"}
+    assert [head["name"] for head in report["heads"]] == ["front"]
+    assert report["obstacle_distance_hz"] == pytest.approx(report["scans"] / 3.0, abs=0.01)
