@@ -279,6 +279,10 @@ def _locate(root: yaml.Node, err: ErrorDetails) -> tuple[int, list[LocPart]]:
     if err["type"] in ("union_tag_invalid", "union_tag_not_found"):
         tag = str(err.get("ctx", {}).get("discriminator", "")).strip("'")
         child = _mapping_child(node, tag)
+        if child is None:
+            # A discriminator function (the matchers') names no key: they choose by ``kind``.
+            tag = "kind"
+            child = _mapping_child(node, tag)
         if child is not None:
             line = child[0].start_mark.line + 1
             path.append(tag)
