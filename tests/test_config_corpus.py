@@ -33,7 +33,7 @@ CASES = [
     ("fps: 15\n      seed", "fps: 1e-300\n      seed", "heads[0].source.fps"),
     ("seed: 1\n", "seed: -1\n", "heads[0].source.seed"),
     ("camera_height_m: 1.5", "camera_height_m: .inf", "heads[0].source.camera_height_m"),
-    ("kind: sgbm", "kind: magic", "heads[0].matcher"),
+    ("kind: sgbm", "kind: magic", "heads[0].matcher.kind"),
     ("num_disparities: 64", "num_disparities: 60", "heads[0].matcher.num_disparities"),
     ("num_disparities: 64", "num_disparities: '64'", "heads[0].matcher.num_disparities"),
     ("block_size: 5", "block_size: 4", "heads[0].matcher.block_size"),
