@@ -14,9 +14,12 @@ import sys
 import time
 from pathlib import Path
 
+import pytest
+
 from tests.helpers import REPO, free_udp_port
 
 WARM_UP_S = 30.0
+SOAK_S = float(os.environ.get("AVOIDD_SOAK_S", "120"))
 
 
 def _rss_kib(pid: int) -> int:
@@ -26,8 +29,9 @@ def _rss_kib(pid: int) -> int:
     raise AssertionError(f"no VmRSS for process {pid}")
 
 
+@pytest.mark.timeout(SOAK_S + 120)
 def test_memory_stays_flat_after_warm_up(tmp_path: Path) -> None:
-    soak_s = float(os.environ.get("AVOIDD_SOAK_S", "120"))
+    soak_s = SOAK_S
     config = tmp_path / "soak.yaml"
     demo = (REPO / "config" / "demo.yaml").read_text()
     calibration = REPO / "config" / "calibration" / "synthetic-640x480.yaml"
