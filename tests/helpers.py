@@ -121,21 +121,14 @@ class MavlinkPeer:
         return bytes(msg.pack(self._mav))
 
 
-class UdpPeer(MavlinkPeer, asyncio.DatagramProtocol):
-    """A MAVLink peer on a real loopback UDP socket."""
+class LoopbackSocket(asyncio.DatagramProtocol):
+    """A UDP socket on loopback: its transport, its port, closing it."""
 
-    def __init__(self) -> None:
-        MavlinkPeer.__init__(self)
-        self.transport: asyncio.DatagramTransport | None = None
-        self.last_addr: Any = None
+    transport: Any = None
 
     def connection_made(self, transport: asyncio.BaseTransport) -> None:
         # Python 3.11's selector transport does not subclass DatagramTransport.
-        self.transport = transport  # type: ignore[assignment]
-
-    def datagram_received(self, data: bytes, addr: Any) -> None:
-        self.last_addr = addr
-        self.feed(data)
+        self.transport = transport
 
     @property
     def port(self) -> int:
@@ -145,6 +138,18 @@ class UdpPeer(MavlinkPeer, asyncio.DatagramProtocol):
     def close(self) -> None:
         if self.transport is not None:
             self.transport.close()
+
+
+class UdpPeer(MavlinkPeer, LoopbackSocket):
+    """A MAVLink peer on a real loopback UDP socket."""
+
+    def __init__(self) -> None:
+        MavlinkPeer.__init__(self)
+        self.last_addr: Any = None
+
+    def datagram_received(self, data: bytes, addr: Any) -> None:
+        self.last_addr = addr
+        self.feed(data)
 
 
 async def open_udp_peer(host: str = "127.0.0.1", port: int = 0) -> UdpPeer:
@@ -204,7 +209,7 @@ def noisy_grey_pair(scene: Any, rig: Any, seed: int, sigma: float) -> tuple[Any,
     return views[0], views[1], rendered.truth
 
 
-class UdpHub(asyncio.DatagramProtocol):
+class UdpHub(LoopbackSocket):
     """A tiny MAVLink router on loopback: every datagram goes to every other peer heard so far.
 
     Like mavlink-router's UDP server endpoints, it lets a ground-station tool, avoidd and an
@@ -213,10 +218,6 @@ class UdpHub(asyncio.DatagramProtocol):
 
     def __init__(self) -> None:
         self.peers: list[Any] = []
-        self.transport: Any = None
-
-    def connection_made(self, transport: asyncio.BaseTransport) -> None:
-        self.transport = transport
 
     def datagram_received(self, data: bytes, addr: Any) -> None:
         if addr not in self.peers:
@@ -225,15 +226,6 @@ class UdpHub(asyncio.DatagramProtocol):
         for peer in self.peers:
             if peer != addr:
                 self.transport.sendto(data, peer)
-
-    @property
-    def port(self) -> int:
-        assert self.transport is not None
-        return int(self.transport.get_extra_info("sockname")[1])
-
-    def close(self) -> None:
-        if self.transport is not None:
-            self.transport.close()
 
 
 async def start_hub() -> UdpHub:
