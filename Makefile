@@ -6,7 +6,7 @@ VENV := .venv
 BIN := $(VENV)/bin
 CONFIG ?= config/demo.yaml
 
-.PHONY: run test sim lint typecheck pytest format clean
+.PHONY: run test sim lint typecheck pytest format clean config-reference
 
 run: $(VENV)/.stamp-run
 	$(BIN)/avoidd run --config $(CONFIG)
@@ -21,6 +21,10 @@ test: $(VENV)/.stamp-test
 SEEDS ?= 1
 sim: $(VENV)/.stamp-run
 	$(BIN)/avoidd sim batch sitl/scenarios/*.yaml --seeds $(SEEDS) --json sim-batch.json
+
+# docs/config-reference.md from the config models (tests/test_config_reference.py checks it).
+config-reference: $(VENV)/.stamp-run
+	$(BIN)/python -m avoidd.config.reference > docs/config-reference.md
 
 format: $(VENV)/.stamp-test
 	$(BIN)/ruff format avoidd tests

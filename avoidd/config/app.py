@@ -29,7 +29,11 @@ class PipelineConfig(Strict):
 
 
 class AppConfig(Strict):
-    """The whole configuration file."""
+    """The whole configuration file.
+
+    Attributes:
+        version: Format version of the file; 1.
+    """
 
     version: Annotated[Literal[1], WholeNumber]
     heads: list[HeadConfig] = Field(min_length=1, max_length=8)

@@ -21,7 +21,16 @@ from avoidd.config.stereo import (
 
 
 class MountConfig(Strict):
-    """Pose of a stereo head in the body FRD frame (see ``avoidd.types.Mount``)."""
+    """Pose of a stereo head in the body FRD frame (see ``avoidd.types.Mount``).
+
+    Attributes:
+        yaw_deg: Heading of the head's optical axis from the vehicle's nose, clockwise (90: looks
+            right).
+        pitch_deg: Tilt of the optical axis, nose up positive.
+        roll_deg: Roll of the head about its optical axis.
+        position_m: Forward, right and down offset of the left camera from the body origin, each
+            within 5 m of it.
+    """
 
     yaw_deg: float = Field(0.0, ge=-180.0, le=360.0)
     pitch_deg: float = Field(0.0, ge=-90.0, le=90.0)
@@ -42,7 +51,13 @@ _HEAD_NAME = re.compile(r"^[a-z][a-z0-9_-]{0,31}$")
 
 
 class HeadConfig(Strict):
-    """One stereo head: its calibration file, its mount, its source and its matcher."""
+    """One stereo head: its calibration file, its mount, its source and its matcher.
+
+    Attributes:
+        name: Lower case, unique: it names the head in logs, STATUSTEXT and stats.
+        calibration: The head's calibration file (``avoidd calibrate`` or ``import-calibration``
+            writes one).
+    """
 
     name: str
     calibration: Annotated[ConfigPath, AfterValidator(_existing_file)]

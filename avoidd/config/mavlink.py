@@ -56,6 +56,14 @@ class StreamsConfig(Strict):
 
     Each is requested with MAV_CMD_SET_MESSAGE_INTERVAL, repeated until acknowledged, and again
     whenever the link comes back (an autopilot forgets requested intervals when it reboots).
+
+    Attributes:
+        attitude_hz: ATTITUDE, for levelling each frame's points (50 Hz: the attitude at capture
+            time is interpolated).
+        local_position_hz: LOCAL_POSITION_NED, for the planner, obstacle memory and recordings.
+        distance_sensor_hz: DISTANCE_SENSOR from the autopilot (a downward rangefinder gives the
+            height).
+        system_time_hz: SYSTEM_TIME, for mapping the autopilot's boot time onto avoidd's clock.
     """
 
     attitude_hz: StreamRate = 50.0
@@ -123,7 +131,14 @@ class DistanceSensorConfig(Strict):
 
 
 class ObstacleDistance3dConfig(Strict):
-    """OBSTACLE_DISTANCE_3D: the nearest ``max_points`` obstacle points (BODY_FRD, metres)."""
+    """OBSTACLE_DISTANCE_3D: the nearest ``max_points`` obstacle points (BODY_FRD, metres).
+
+    Attributes:
+        enabled: Send OBSTACLE_DISTANCE_3D.
+        rate_hz: Messages per second (each message is one point; a cycle sends up to
+            ``max_points``).
+        max_points: The nearest points sent per cycle.
+    """
 
     enabled: bool = False
     rate_hz: float = Field(10.0, ge=1.0, le=50.0)
@@ -143,6 +158,8 @@ class MavlinkConfig(Strict):
         heartbeat_hz: avoidd's own HEARTBEAT rate (0.5 to 10 Hz; autopilots and ground
             stations expect 1 Hz).
         link_timeout_s: The link is down when no autopilot heartbeat came for this long.
+        component_id: avoidd's own component id (196 is MAV_COMP_ID_OBSTACLE_AVOIDANCE;
+            goals addressed to avoidd use it).
     """
 
     connection: str | None = None

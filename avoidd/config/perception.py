@@ -34,14 +34,26 @@ class GroundConfig(Strict):
 
 
 class BandConfig(Strict):
-    """Points more than ``above_m`` above or ``below_m`` below the body origin are ignored."""
+    """Points more than ``above_m`` above or ``below_m`` below the body origin are ignored.
+
+    Attributes:
+        above_m: Ignore points higher than this above the body origin.
+        below_m: Ignore points lower than this below the body origin (the ground model removes the
+            ground first).
+    """
 
     above_m: float = Field(2.0, gt=0.0, le=100.0)
     below_m: float = Field(2.0, gt=0.0, le=100.0)
 
 
 class AttitudeConfig(Strict):
-    """Attitude assumed when neither the autopilot nor the recording gives one."""
+    """Attitude assumed when neither the autopilot nor the recording gives one.
+
+    Attributes:
+        roll_deg: Roll assumed without an autopilot or recorded attitude (right wing down
+            positive).
+        pitch_deg: Pitch assumed likewise (nose up positive).
+    """
 
     roll_deg: float = Field(0.0, ge=-90.0, le=90.0)
     pitch_deg: float = Field(0.0, ge=-90.0, le=90.0)

@@ -15,6 +15,14 @@ class SyntheticObstacleConfig(Strict):
     ``forward_m``/``right_m`` locate the centre of its footprint relative to the camera. A box is
     ``width_m`` across (right) and ``depth_m`` deep (forward); a pole is a vertical cylinder of
     diameter ``width_m``.
+
+    Attributes:
+        shape: ``box`` or ``pole``.
+        forward_m: Footprint centre ahead of the camera.
+        right_m: Footprint centre right of the camera.
+        width_m: Extent across (a pole's diameter).
+        depth_m: Extent along the view (boxes).
+        height_m: Height above the ground.
     """
 
     shape: Literal["box", "pole"]
@@ -44,6 +52,20 @@ class SyntheticSourceConfig(Strict):
     ``camera_pitch_deg`` is the head's mount pitch (the head's ``mount.pitch_deg`` must say the
     same); ``vehicle_roll_deg`` and ``vehicle_pitch_deg`` tilt the whole rig and travel with
     each frame as its recorded attitude, as does ``camera_height_m`` as its height.
+
+    Attributes:
+        fps: Frames per second rendered.
+        seed: Seed of the textures and noise.
+        camera_height_m: Camera height above the ground (recorded with each frame).
+        camera_pitch_deg: Camera tilt; must equal the head's ``mount.pitch_deg``.
+        vehicle_roll_deg: Roll of the whole rig (recorded with each frame).
+        vehicle_pitch_deg: Pitch of the whole rig (recorded with each frame).
+        noise_std: Grey-level noise added to each view.
+        approach_speed_mps: The scene moves towards the camera at this speed (0: still), down to
+            ``min_forward_m``, then starts over.
+        min_forward_m: Nearest an obstacle comes while approaching.
+        backdrop_m: Distance of the far tree line (null: sky only).
+        obstacles: The obstacles standing on the ground (default: a box, a pole and a far box).
     """
 
     kind: Literal["synthetic"]
@@ -61,7 +83,15 @@ class SyntheticSourceConfig(Strict):
 
 
 class FilesSourceConfig(Strict):
-    """Recorded frames: a folder with ``left/`` and ``right/`` images, or a side-by-side video."""
+    """Recorded frames: a folder with ``left/`` and ``right/`` images, or a side-by-side video.
+
+    Attributes:
+        path: A folder with ``left/`` and ``right/`` (and optional ``frames.csv``), or a
+            side-by-side video.
+        fps: Pacing in ``run`` (null: from ``frames.csv`` times, else 10 fps; a video's own
+            rate); replay reads as fast as it can.
+        loop: Start over at the end (``run`` only; replay reads once).
+    """
 
     kind: Literal["files"]
     path: Annotated[ConfigPath, AfterValidator(_existing_path)]
@@ -74,6 +104,16 @@ class V4l2SourceConfig(Strict):
 
     A camera that fails is reopened after ``reopen_min_s``, the wait doubling up to
     ``reopen_max_s``.
+
+    Attributes:
+        devices: Two devices (left, right) or one side-by-side device: /dev/videoN or
+            /dev/v4l/by-id/....
+        width: Width of one eye in pixels.
+        height: Height in pixels.
+        fps: Frames per second asked of the camera.
+        fourcc: Pixel format asked of the camera (MJPG, YUYV...; null: the driver's default).
+        reopen_min_s: First wait before reopening a failed camera.
+        reopen_max_s: Longest wait (the wait doubles up to it).
     """
 
     kind: Literal["v4l2"]

@@ -30,6 +30,22 @@ class SgbmConfig(Strict):
     (without it the rendered truth suite's p95 range error rose from 5.0 to 6.4%).
     The defaults (pad, uniqueness 5, P2 64 bs^2) were measured over Middlebury 2014 Q, 2003
     and 2001 together (README, "Stereo quality").
+
+    Attributes:
+        min_disparity: Smallest disparity searched (0 for a rectified rig with parallel axes).
+        num_disparities: Width of the search range (multiple of 16); with the rig it sets the
+            nearest measurable range f*B/(n-1).
+        block_size: Odd matching window side.
+        p1: Penalty for a disparity change of 1 between neighbours (null: 8 * block_size^2).
+        p2: Penalty for larger changes (null: 64 * block_size^2; must exceed p1).
+        uniqueness_ratio: Percent by which the best cost must beat the second best.
+        speckle_window_size: Islands of similar disparity smaller than this are dropped (0: off).
+        speckle_range: Largest disparity step inside one island.
+        disp12_max_diff: Left-right check tolerance in pixels (-1: off).
+        pre_filter_cap: Clip of the x-derivative prefilter.
+        mode: OpenCV's SGBM mode: sgbm (5 paths), hh (8 paths, slow), sgbm_3way (fast), hh4.
+        pad_left: Pad both views so the left border band is matched too (its
+            disparities never reach obstacle detection).
     """
 
     kind: Literal["sgbm"] = "sgbm"
@@ -62,6 +78,10 @@ class SadConfig(Strict):
         uniqueness_ratio: Percent by which the best cost must beat the second best.
         pre_filter: ``xsobel`` (OpenCV's default) or ``normalized_response``.
         pad_left: As for SGBM.
+        num_disparities: Width of the search range (multiple of 16).
+        speckle_window_size: As for SGBM.
+        speckle_range: As for SGBM.
+        disp12_max_diff: As for SGBM.
     """
 
     kind: Literal["sad"]
@@ -90,6 +110,7 @@ class CensusConfig(Strict):
             are not matched (their census codes carry no information).
         lr_max_diff_px: Left-right check: the right view's match must point back within this.
         speckle_window_size: Islands of similar disparity smaller than this are dropped (0: off).
+        num_disparities: Width of the search range (multiple of 16, up to 256).
     """
 
     kind: Literal["census"]
@@ -123,6 +144,7 @@ class SegmentConfig(Strict):
         max_residual_px: A region is filled only if its boundary disparities fit a plane this
             well (median absolute residual); otherwise it spans a depth edge and stays empty.
         pad_left: As for SGBM.
+        num_disparities: Width of the search range (multiple of 16).
     """
 
     kind: Literal["segment"]
@@ -223,6 +245,12 @@ class TextureConfig(Strict):
     A pixel is textured when it differs from the mean (or median) of its ``window_px`` window by
     at least ``offset`` grey levels, or has such a pixel within ``spread_px``; disparities of
     untextured pixels are dropped rather than guessed.
+
+    Attributes:
+        method: Local reference: ``mean`` or ``median`` of the window.
+        window_px: Odd side of that window.
+        offset: Grey levels a pixel must differ from the reference to count as texture.
+        spread_px: Odd side of the neighbourhood over which texture is spread.
     """
 
     method: Literal["mean", "median"] = "mean"
@@ -299,7 +327,13 @@ class PostprocessConfig(Strict):
 
 
 class HistogramConfig(Strict):
-    """The per-frame depth histogram (linearly spaced edges from ``min_m`` to ``max_m``)."""
+    """The per-frame depth histogram (linearly spaced edges from ``min_m`` to ``max_m``).
+
+    Attributes:
+        min_m: Lower edge of the first bin.
+        max_m: Upper edge of the last bin.
+        bins: Number of bins.
+    """
 
     min_m: float = Field(0.0, ge=0.0)
     max_m: float = Field(20.0, gt=0.0, le=1000.0)
