@@ -1,4 +1,4 @@
-"""``avoidd sim run`` and ``avoidd sim batch``: closed-loop scenarios in the simulator."""
+"""``avoidd sim run|batch|ardupilot``: closed-loop scenarios in the simulator or a real SITL."""
 
 from __future__ import annotations
 
@@ -34,6 +34,26 @@ def configure(name: str, parser: argparse.ArgumentParser) -> None:
         help="top speed for every scenario, m/s (a speed sweep over the same batch)",
     )
     batch.set_defaults(handler=run_batch)
+    sitl = actions.add_parser(
+        "ardupilot", help="fly one scenario with a real ArduCopter SITL and avoidd's daemon"
+    )
+    sitl.add_argument("scenario", type=Path, help="scenario file (sitl/scenarios/*.yaml)")
+    sitl.add_argument(
+        "--binary-dir",
+        type=Path,
+        default=Path(os.environ.get("AVOIDD_SITL_DIR", "../shared/sitl/ardupilot")),
+        help="folder with arducopter and copter.parm (default: $AVOIDD_SITL_DIR)",
+    )
+    sitl.add_argument(
+        "--push",
+        type=float,
+        metavar="M_S",
+        help="planner off: push the vehicle at the goal at this speed; ArduPilot's own "
+        "avoidance must stop it on avoidd's data",
+    )
+    sitl.add_argument("--avoid-margin", type=float, help="ArduPilot's AVOID_MARGIN, metres")
+    sitl.add_argument("--json", type=Path, help="write the summary and every sample as JSON")
+    sitl.set_defaults(handler=run_ardupilot)
 
 
 def run_one(args: argparse.Namespace) -> int:
@@ -45,6 +65,39 @@ def run_one(args: argparse.Namespace) -> int:
     if args.out is not None:
         for path in write_outputs(run, summary, args.out):
             print(f"wrote {path}")
+    for failure in summary.failures:
+        print(f"FAILED: {failure}")
+    return EXIT_OK if summary.passed else EXIT_FAILURE
+
+
+def run_ardupilot(args: argparse.Namespace) -> int:
+    """Fly one scenario against ArduCopter SITL; exit 0 when it passes its criteria."""
+    import asyncio
+    import dataclasses
+    import socket
+
+    from avoidd.config.sim import load_scenario
+    from avoidd.sim.external import ExternalRun
+
+    scenario = load_scenario(args.scenario)
+    if args.push is not None and not 0.1 <= args.push <= 10.0:
+        raise ConfigError([f"--push {args.push}: give 0.1 to 10 m/s"])
+    run = ExternalRun(
+        scenario,
+        args.binary_dir,
+        mode="push" if args.push is not None else "planner",
+        push_speed_m_s=args.push or 2.0,
+        avoid_margin_m=args.avoid_margin,
+    )
+    with socket.socket(socket.AF_INET, socket.SOCK_DGRAM) as probe:
+        probe.bind(("127.0.0.1", 0))
+        port = int(probe.getsockname()[1])
+    summary = asyncio.run(run.run(port))
+    report = summary.as_json()
+    print(json.dumps(report, indent=2))
+    if args.json is not None:
+        samples = [dataclasses.asdict(sample) for sample in summary.samples]
+        args.json.write_text(json.dumps(report | {"trace": samples}, indent=2) + "\n")
     for failure in summary.failures:
         print(f"FAILED: {failure}")
     return EXIT_OK if summary.passed else EXIT_FAILURE

@@ -71,6 +71,10 @@ class AttitudeHistory:
             self._times.popleft()
             self._samples.popleft()
 
+    def newest(self) -> Attitude | None:
+        """The newest sample, or None before the first."""
+        return self._samples[-1] if self._samples else None
+
     def at(self, t_ns: int) -> Attitude | None:
         """The attitude at ``t_ns``, linearly interpolated between the samples around it.
 

@@ -54,3 +54,23 @@ def north_east_m(origin: GlobalPoint, lat_deg: float, lon_deg: float) -> tuple[f
     north_m = (lat_deg - origin.lat_deg) * 1e7 * METRES_PER_DEG_E7
     east_m = d_lon_deg * 1e7 * METRES_PER_DEG_E7 * max(math.cos(mean_lat_rad), 0.01)
     return north_m, east_m
+
+
+def offset_lat_lon(origin: GlobalPoint, north_m: float, east_m: float) -> tuple[float, float]:
+    """The latitude and longitude of a point given north and east of the origin.
+
+    The exact inverse of :func:`north_east_m` (the same flat projection).
+
+    Args:
+        origin: The local frame's origin.
+        north_m: Metres north of it.
+        east_m: Metres east of it.
+
+    Returns:
+        (lat_deg, lon_deg).
+    """
+    lat_deg = origin.lat_deg + north_m / (1e7 * METRES_PER_DEG_E7)
+    mean_lat_rad = math.radians((lat_deg + origin.lat_deg) / 2.0)
+    scale = 1e7 * METRES_PER_DEG_E7 * max(math.cos(mean_lat_rad), 0.01)
+    lon_deg = math.remainder(origin.lon_deg + east_m / scale, 360.0)
+    return lat_deg, lon_deg

@@ -130,6 +130,8 @@ class Vehicle:
         self.clock = ClockSync()
         self.attitude = AttitudeHistory()
         self.position: LocalPosition | None = None
+        self.position_received_ns = 0
+        """When the newest LOCAL_POSITION_NED arrived (local monotonic clock)."""
         self.rangefinder: Rangefinder | None = None
         self.origin: GlobalPoint | None = None
         """The local frame's origin (GPS_GLOBAL_ORIGIN), for global goals."""
@@ -278,6 +280,7 @@ class Vehicle:
         assert t_ns is not None
         m = message
         self.position = LocalPosition(t_ns, m.x, m.y, m.z, m.vx, m.vy, m.vz)
+        self.position_received_ns = received_ns
 
     def _on_distance_sensor(self, message: mav.Message, received_ns: int) -> None:
         if message.orientation != mav.MAV_SENSOR_ROTATION_PITCH_270:

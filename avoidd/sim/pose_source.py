@@ -1,0 +1,162 @@
+"""A head's camera in an external simulation: the world rendered from the autopilot's pose.
+
+A SITL autopilot (ArduPilot, PX4) simulates its own vehicle; avoidd hears its pose as
+LOCAL_POSITION_NED and ATTITUDE like any autopilot's. :class:`PoseRenderedSource` is a frame
+source that renders what a head would see from that pose, in real time, so the daemon runs
+unchanged (its own link, pipeline and outputs) with a simulated camera in place of a real one.
+The pose comes from a callable (the daemon's :class:`~avoidd.mavlink.vehicle.Vehicle` in
+practice), so the source itself knows nothing of MAVLink.
+"""
+
+from __future__ import annotations
+
+import math
+import time
+from collections.abc import Callable
+from dataclasses import dataclass
+
+import numpy as np
+
+from avoidd.errors import BrokenFrame
+from avoidd.mavlink.vehicle import Vehicle
+from avoidd.sim.render import StereoRenderer
+from avoidd.sources.base import Pacer
+from avoidd.types import StereoFrame
+
+
+@dataclass(frozen=True)
+class VehiclePose:
+    """Where the vehicle is, in the world's frame (local NED, metres; attitude as ATTITUDE).
+
+    Attributes:
+        north_m: Position north of the world's origin.
+        east_m: Position east of it.
+        down_m: Position down (negative in the air).
+        yaw_rad: Heading, clockwise from north.
+        roll_rad: Roll, right side down positive.
+        pitch_rad: Pitch, nose up positive.
+    """
+
+    north_m: float
+    east_m: float
+    down_m: float
+    yaw_rad: float
+    roll_rad: float
+    pitch_rad: float
+
+
+PoseNow = Callable[[int], VehiclePose | None]
+"""The vehicle's pose at a monotonic time in ns, or None when it is not known."""
+
+
+def vehicle_pose(
+    vehicle: Vehicle,
+    offset_ne_m: tuple[float, float] = (0.0, 0.0),
+    max_age_ns: int = 500_000_000,
+) -> PoseNow:
+    """A pose callable over what the daemon hears from the autopilot: its newest reports.
+
+    The newest ATTITUDE and LOCAL_POSITION_NED, not the ones at the frame's time on the
+    autopilot's clock: a SITL's boot clock does not keep pace with the wall clock while it starts
+    (its simulation waits for a ground station), so mapped times lag for a while, and what an
+    external simulation's camera sees is the vehicle's latest state anyway.
+
+    Args:
+        vehicle: The daemon's view of the autopilot (LOCAL_POSITION_NED and ATTITUDE).
+        offset_ne_m: The world position of the autopilot's local origin (a scenario that
+            starts elsewhere than the world's origin).
+        max_age_ns: A position received longer ago than this is not a pose (the autopilot
+            went quiet).
+
+    Returns:
+        The callable; None until both a position and an attitude have been heard.
+    """
+
+    def pose_at(t_ns: int) -> VehiclePose | None:
+        position = vehicle.position
+        attitude = vehicle.attitude.newest()
+        if position is None or attitude is None:
+            return None
+        age_ns = t_ns - vehicle.position_received_ns
+        if age_ns > max_age_ns:
+            return None
+        # Carry the position forward to the frame's time with the reported velocity.
+        dt_s = max(0.0, age_ns / 1e9)
+        return VehiclePose(
+            position.north_m + position.vn_m_s * dt_s + offset_ne_m[0],
+            position.east_m + position.ve_m_s * dt_s + offset_ne_m[1],
+            position.down_m + position.vd_m_s * dt_s,
+            attitude.yaw_rad,
+            attitude.roll_rad,
+            attitude.pitch_rad,
+        )
+
+    return pose_at
+
+
+class PoseRenderedSource:
+    """Frames rendered from the vehicle's reported pose, paced at ``fps``.
+
+    Args:
+        renderer: The head's renderer (its world, rig and mount).
+        pose_at: The vehicle's pose at a time.
+        fps: Frames per second.
+        seed: Seed of the sensor noise.
+        wait_s: How long a read waits for a pose before it gives up on that frame (no pose:
+            nothing to render, and an image from a made-up pose would be a lie).
+    """
+
+    def __init__(
+        self,
+        renderer: StereoRenderer,
+        pose_at: PoseNow,
+        fps: float,
+        seed: int = 0,
+        wait_s: float = 0.5,
+    ) -> None:
+        self._renderer = renderer
+        self._pose_at = pose_at
+        self._pacer = Pacer(fps)
+        self._rng = np.random.default_rng(seed)
+        self._wait_ns = int(wait_s * 1e9)
+        self._seq = 0
+
+    @property
+    def description(self) -> str:
+        """What the source renders, for logs."""
+        return "the simulated world from the autopilot's pose"
+
+    def read(self) -> StereoFrame:
+        """Render the next frame from the pose at its capture time.
+
+        Raises:
+            BrokenFrame: No pose came within ``wait_s`` (the autopilot is silent or has no
+                position yet): this frame is dropped and counted, as an unreadable one is, and
+                a run of them is a lost camera.
+        """
+        t_capture_ns = self._pacer.wait()
+        deadline_ns = t_capture_ns + self._wait_ns
+        pose = self._pose_at(t_capture_ns)
+        while pose is None:
+            if time.monotonic_ns() > deadline_ns:
+                raise BrokenFrame("no pose from the autopilot (LOCAL_POSITION_NED and ATTITUDE)")
+            time.sleep(0.05)
+            t_capture_ns = time.monotonic_ns()
+            pose = self._pose_at(t_capture_ns)
+        pair = self._renderer.render(
+            pose.north_m,
+            pose.east_m,
+            pose.down_m,
+            pose.yaw_rad,
+            math.degrees(pose.roll_rad),
+            math.degrees(pose.pitch_rad),
+            self._rng,
+        )
+        # No recorded pose: like a real camera, the daemon takes the autopilot's attitude at
+        # the capture time.
+        frame = StereoFrame(self._seq, t_capture_ns, pair.left, pair.right, None, None)
+        self._seq += 1
+        return frame
+
+    def close(self) -> None:
+        """Nothing to release."""

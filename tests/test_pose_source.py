@@ -1,0 +1,106 @@
+"""The external-simulation camera: frames rendered from the pose the autopilot reports."""
+
+from __future__ import annotations
+
+import math
+import time
+
+import numpy as np
+import pytest
+
+from avoidd.config import MavlinkConfig
+from avoidd.config.sim import WorldConfig
+from avoidd.errors import BrokenFrame
+from avoidd.mavlink import codec as mav
+from avoidd.mavlink.geo import GlobalPoint, north_east_m, offset_lat_lon
+from avoidd.mavlink.link import MavLink
+from avoidd.mavlink.vehicle import Vehicle
+from avoidd.sim.lockstep import RIGS
+from avoidd.sim.pose_source import PoseRenderedSource, VehiclePose, vehicle_pose
+from avoidd.sim.render import StereoRenderer
+from avoidd.sim.world import World
+from avoidd.types import Mount
+
+COPTER = 2
+WALL = {
+    "version": 1,
+    "seed": 5,
+    "obstacles": [{"shape": "wall", "start_ne_m": [6, -5], "end_ne_m": [6, 5], "height_m": 6}],
+}
+
+
+def _renderer() -> StereoRenderer:
+    world = World.from_config(WorldConfig.model_validate(WALL))
+    return StereoRenderer(world, RIGS["320x240"], Mount())
+
+
+def _half_thickness(renderer: StereoRenderer) -> float:
+    # Inside the wall the clearance is minus the depth to its nearer face.
+    return -renderer.world.clearance_m(6.0, 0.0, 2.0)
+
+
+def _vehicle() -> tuple[Vehicle, mav.Codec, MavLink]:
+    config = MavlinkConfig(connection="udpout:127.0.0.1:9")
+    link = MavLink(config.link, mav.Codec(1, 196))
+    return Vehicle(link, config, lambda severity, text, key=None: None), mav.Codec(1, 1), link
+
+
+def _feed(vehicle: Vehicle, link: MavLink, sender: mav.Codec, message: mav.Message) -> None:
+    for decoded in link.codec.decode(sender.pack(message)):
+        vehicle.handle(decoded, time.monotonic_ns())
+
+
+def test_the_wall_ahead_comes_nearer_as_the_reported_pose_does() -> None:
+    poses = iter(
+        [VehiclePose(0.0, 0.0, -2.0, 0.0, 0.0, 0.0), VehiclePose(3.0, 0.0, -2.0, 0.0, 0.0, 0.0)]
+    )
+    renderer = _renderer()
+    source = PoseRenderedSource(renderer, lambda t_ns: next(poses), fps=50.0, seed=1)
+    first, second = source.read(), source.read()
+    assert (first.seq, second.seq) == (0, 1)
+    assert second.t_capture_ns > first.t_capture_ns
+    assert first.pose is None  # the daemon takes the autopilot's attitude, as for a camera
+    # The left view's centre is the wall's face: 6 m less half its thickness, then 3 m less.
+    face_m = 6.0 - _half_thickness(renderer)
+    assert renderer.render(0.0, 0.0, -2.0, 0.0).depth_m[120, 160] == pytest.approx(face_m, abs=0.02)
+    nearer = renderer.render(3.0, 0.0, -2.0, 0.0).depth_m[120, 160]
+    assert nearer == pytest.approx(face_m - 3.0, abs=0.02)
+    assert first.left.shape == (240, 320) and not np.array_equal(first.left, second.left)
+
+
+def test_without_a_pose_a_frame_is_dropped_not_invented() -> None:
+    source = PoseRenderedSource(_renderer(), lambda t_ns: None, fps=50.0, wait_s=0.05)
+    with pytest.raises(BrokenFrame, match="no pose from the autopilot"):
+        source.read()
+
+
+def test_the_pose_is_the_autopilots_newest_report_shifted_to_the_world() -> None:
+    vehicle, sender, link = _vehicle()
+    pose_at = vehicle_pose(vehicle, offset_ne_m=(10.0, -2.0), max_age_ns=500_000_000)
+    beat = sender.build("HEARTBEAT", COPTER, mav.MAV_AUTOPILOT_ARDUPILOTMEGA, 1, 4, 4)
+    _feed(vehicle, link, sender, beat)
+    assert pose_at(time.monotonic_ns()) is None  # nothing heard yet
+    _feed(vehicle, link, sender, sender.build("ATTITUDE", 1000, 0.05, -0.02, 1.2, 0, 0, 0))
+    assert pose_at(time.monotonic_ns()) is None  # an attitude alone is no pose
+    position = sender.build("LOCAL_POSITION_NED", 1000, 3.0, 4.0, -2.5, 0.0, 0.0, 0.0)
+    _feed(vehicle, link, sender, position)
+    pose = pose_at(time.monotonic_ns())
+    assert pose is not None
+    assert (pose.north_m, pose.east_m, pose.down_m) == pytest.approx((13.0, 2.0, -2.5))
+    assert (pose.roll_rad, pose.pitch_rad, pose.yaw_rad) == pytest.approx((0.05, -0.02, 1.2))
+    # A position report older than the limit is no pose: the autopilot went quiet.
+    assert pose_at(vehicle.position_received_ns + 600_000_000) is None
+
+
+@pytest.mark.parametrize(
+    ("lat_deg", "lon_deg", "north_m", "east_m"),
+    [(-35.363261, 149.16523, 30.0, -4.0), (47.0, 179.9999, 12.0, 50.0), (60.0, 0.0, -900.0, 0.0)],
+)
+def test_offset_lat_lon_inverts_north_east(
+    lat_deg: float, lon_deg: float, north_m: float, east_m: float
+) -> None:
+    origin = GlobalPoint(lat_deg, lon_deg, 0.0)
+    lat, lon = offset_lat_lon(origin, north_m, east_m)
+    assert -180.0 <= lon <= 180.0
+    back = north_east_m(origin, lat, lon)
+    assert math.hypot(back[0] - north_m, back[1] - east_m) < 1e-6
