@@ -57,8 +57,13 @@ Mode = Literal["planner", "push"]
 
 _NAV_TAKEOFF = 22
 """MAV_CMD_NAV_TAKEOFF (param 7: the altitude)."""
-_VELOCITY_ONLY = 0x0DC7
-"""SET_POSITION_TARGET type mask: velocity, no position, acceleration, yaw or yaw rate."""
+_VELOCITY_AND_YAW = 0x09C7
+"""SET_POSITION_TARGET type mask: velocity and yaw angle (no position, acceleration, yaw rate).
+
+The push holds the heading the scenario starts with: with velocity alone ArduPilot turns the
+nose towards the direction of travel, so when its avoidance backs the vehicle away from the wall
+the single forward camera turns away from it, the wall falls into bins nothing measures, and
+the next push meets it unseen (observed)."""
 
 
 @dataclass
@@ -374,14 +379,15 @@ class ExternalRun:
     def _push(
         self, gcs: GroundStation, sample: Sample, north_goal: float, east_goal: float
     ) -> None:
-        """A velocity setpoint towards the goal at the push speed (type mask: velocity only)."""
+        """A velocity setpoint towards the goal at the push speed, heading held."""
         dn, de = north_goal - sample.north_m, east_goal - sample.east_m
         distance = math.hypot(dn, de)
         speed = min(self.push_speed_m_s, distance)
         vn, ve = (dn / distance * speed, de / distance * speed) if distance > 0.1 else (0.0, 0.0)
         assert self.daemon is not None
-        velocity = (vn, ve, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0)
-        target = (0, self.daemon.vehicle.system_id, 1, mav.MAV_FRAME_LOCAL_NED, _VELOCITY_ONLY)
+        yaw_rad = math.radians(self.scenario.start.yaw_deg)
+        velocity = (vn, ve, 0.0, 0.0, 0.0, 0.0, yaw_rad, 0.0)
+        target = (0, self.daemon.vehicle.system_id, 1, mav.MAV_FRAME_LOCAL_NED, _VELOCITY_AND_YAW)
         gcs.send(gcs.codec.build("SET_POSITION_TARGET_LOCAL_NED", *target, 0, 0, 0, *velocity))
 
     def _judge(self) -> None:
