@@ -8,6 +8,7 @@ both cores busy): the assertions are about what arrives and in which order, not 
 from __future__ import annotations
 
 import asyncio
+import configparser
 import contextlib
 import os
 import re
@@ -26,6 +27,7 @@ from typing import Any
 import pytest
 
 from avoidd.config import ServiceConfig
+from avoidd.config.connection import STANDARD_BAUDS, parse_connection
 from avoidd.daemon import Daemon
 from avoidd.daemon.notify import Notifier, watchdog_interval_s
 from avoidd.daemon.systemd import HeadProgress, ProgressMonitor, waiting_for
@@ -36,6 +38,8 @@ from avoidd.types import StereoFrame
 from tests.helpers import REPO, free_udp_port, open_udp_peer, synthetic_config, wait_for
 
 UNIT = REPO / "systemd" / "avoidd.service"
+SIGNING = REPO / "systemd" / "avoidd-signing.conf"
+ROUTER = REPO / "systemd" / "mavlink-router.conf"
 ANALYZE = shutil.which("systemd-analyze")
 needs_analyze = pytest.mark.skipif(ANALYZE is None, reason="systemd-analyze is not installed")
 
@@ -43,10 +47,10 @@ needs_analyze = pytest.mark.skipif(ANALYZE is None, reason="systemd-analyze is n
 # --- the unit file ---------------------------------------------------------------------------
 
 
-def unit_settings() -> dict[str, list[str]]:
-    """Every ``Key=value`` of the unit, by key, in order."""
+def unit_settings(path: Path = UNIT) -> dict[str, list[str]]:
+    """Every ``Key=value`` of a unit file, by key, in order."""
     settings: dict[str, list[str]] = {}
-    for line in UNIT.read_text().splitlines():
+    for line in path.read_text().splitlines():
         if "=" in line and not line.startswith(("#", ";", "[")):
             key, _, value = line.partition("=")
             settings.setdefault(key.strip(), []).append(value.strip())
@@ -61,23 +65,31 @@ def seconds(value: str) -> float:
     return float(match.group(1)) * scale
 
 
-def installed_copy(tmp_path: Path) -> Path:
-    """The unit with ExecStart pointing at this environment's avoidd (verify needs it to exist)."""
+def installed_copy(tmp_path: Path, drop_in: Path | None = None) -> Path:
+    """The unit with ExecStart pointing at this environment's avoidd (verify needs it to exist).
+
+    With ``drop_in``, its ``[Service]`` lines are added to the copy, as systemd would merge them.
+    """
     executable = Path(sys.executable).parent / "avoidd"
     if not executable.is_file():
         pytest.skip(f"{executable} not installed (pip install -e .)")
     text = UNIT.read_text()
     assert "ExecStart=/opt/avoidd/venv/bin/avoidd " in text
+    text = text.replace("/opt/avoidd/venv/bin/avoidd", str(executable))
+    if drop_in is not None:
+        extra = drop_in.read_text().partition("[Service]\n")[2]
+        text = text.replace("[Install]", extra + "\n[Install]")
     copy = tmp_path / "avoidd.service"
-    copy.write_text(text.replace("/opt/avoidd/venv/bin/avoidd", str(executable)))
+    copy.write_text(text)
     return copy
 
 
 @needs_analyze
-def test_the_unit_passes_systemd_analyze_verify(tmp_path: Path) -> None:
+@pytest.mark.parametrize("drop_in", [None, SIGNING], ids=["unit", "with signing drop-in"])
+def test_the_unit_passes_systemd_analyze_verify(tmp_path: Path, drop_in: Path | None) -> None:
     assert ANALYZE is not None
     result = subprocess.run(
-        [ANALYZE, "verify", "--man=no", str(installed_copy(tmp_path))],
+        [ANALYZE, "verify", "--man=no", str(installed_copy(tmp_path, drop_in))],
         capture_output=True,
         text=True,
         timeout=60,
@@ -109,10 +121,30 @@ def test_the_unit_agrees_with_the_daemon() -> None:
     # READY goes out after service.ready_timeout_s at the latest: before systemd gives up.
     assert ServiceConfig().ready_timeout_s < seconds(settings["TimeoutStartSec"][0])
     assert seconds(settings["WatchdogSec"][0]) >= 2 * ServiceConfig().status_interval_s
-    assert settings["LoadCredential"] == ["mavlink-signing-key:/etc/avoidd/signing.key"]
+    assert "LoadCredential" not in settings  # a missing key file would stop the unit starting
     assert settings["StateDirectory"] == ["avoidd"]
     assert "char-video4linux rw" in settings["DeviceAllow"]
     assert settings["DevicePolicy"] == ["closed"]
+
+
+def test_the_signing_drop_in_hands_over_the_credential_the_config_names() -> None:
+    [credential] = unit_settings(SIGNING)["LoadCredential"]
+    name, _, source = credential.partition(":")
+    assert source == "/etc/avoidd/signing.key"
+    assert f"key_credential: {name}" in SIGNING.read_text()
+    assert f"key_credential: {name}" in (REPO / "systemd" / "README.md").read_text()
+
+
+def test_the_mavlink_router_example_feeds_an_avoidd_udpin_link() -> None:
+    router = configparser.ConfigParser()
+    router.read(ROUTER)
+    endpoint = router["UdpEndpoint avoidd"]
+    assert endpoint["Mode"] == "Normal"  # the router sends to avoidd, which listens
+    connection = f"udpin:{endpoint['Address']}:{endpoint['Port']}"
+    assert parse_connection(connection).kind == "udpin"
+    assert f"connection: {connection}" in ROUTER.read_text()
+    assert int(router["UartEndpoint autopilot"]["Baud"]) in STANDARD_BAUDS
+    assert router["UdpEndpoint gcs"]["Port"] != endpoint["Port"]
 
 
 # --- the notify client and the rules ---------------------------------------------------------
