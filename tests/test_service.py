@@ -184,8 +184,10 @@ def test_values_stay_on_one_line(tmp_path: Path) -> None:
         assert listener.sock.recv(4096) == b"READY=1\nSTATUS=two lines"
 
 
-def _head(captured: int, processed: int, reading_since_ns: int | None = None) -> HeadProgress:
-    return HeadProgress("front", captured, processed, reading_since_ns)
+def _head(
+    captured: int, processed: int, reading_since_ns: int | None = None, broken: int = 0
+) -> HeadProgress:
+    return HeadProgress("front", captured, processed, processed + broken, reading_since_ns)
 
 
 def test_a_head_is_stuck_when_frames_wait_and_no_result_comes() -> None:
@@ -195,6 +197,8 @@ def test_a_head_is_stuck_when_frames_wait_and_no_result_comes() -> None:
     assert monitor.update([_head(20, 4)], 2 * s) == {}  # a slow frame is not a stall
     assert "no result for 2 s" in monitor.update([_head(40, 4)], 3 * s)["front"]
     assert monitor.update([_head(41, 5)], 4 * s) == {}  # it came back
+    # Frames dropped as broken are finished too: the compute is alive (and reports them).
+    assert monitor.update([_head(90, 5, broken=30)], 9 * s) == {}
 
 
 def test_a_missing_camera_is_not_stuck_but_a_read_that_never_returns_is() -> None:

@@ -43,19 +43,29 @@ class HeadProgress:
     Attributes:
         name: The head's name.
         captured: Frames its source has delivered since start.
-        processed: Frames its compute has finished since start.
+        processed: Frames its compute has turned into a result since start.
+        finished: Frames its compute is done with since start: results, and frames dropped as
+            broken (the compute is alive either way; broken frames are reported elsewhere).
         reading_since_ns: When its source's read in progress started, None between reads.
     """
 
     name: str
     captured: int
     processed: int
+    finished: int
     reading_since_ns: int | None
 
     @classmethod
     def of(cls, head: Head) -> HeadProgress:
         """Read a running head's counters."""
-        return cls(head.name, head.stats.captured, head.stats.processed, head.reading_since_ns)
+        stats = head.stats
+        return cls(
+            head.name,
+            stats.captured,
+            stats.processed,
+            stats.processed + stats.broken,
+            head.reading_since_ns,
+        )
 
 
 def waiting_for(heads: Sequence[HeadProgress]) -> dict[str, str]:
@@ -78,11 +88,11 @@ def waiting_for(heads: Sequence[HeadProgress]) -> dict[str, str]:
 class ProgressMonitor:
     """Decides which heads are stuck, from their counters sampled over time.
 
-    A head is stuck when frames wait for its compute (its source delivered some since its last
-    result) and it has finished none for ``stall_ns`` (a stalled matcher), or when its source's
-    read has not returned for ``stall_ns`` (a wedged driver). A head whose camera is missing is
-    not stuck: its capture thread reopens it with back-off and avoidd reports it (CRITICAL
-    HEARTBEAT, STATUSTEXT); a restart would not bring the camera back.
+    A head is stuck when frames wait for its compute (its source delivered some since it last
+    finished one) and it has finished none for ``stall_ns`` (a stalled matcher), or when its
+    source's read has not returned for ``stall_ns`` (a wedged driver). A head whose camera is
+    missing is not stuck: its capture thread reopens it with back-off and avoidd reports it
+    (CRITICAL HEARTBEAT, STATUSTEXT); a restart would not bring the camera back.
 
     Args:
         stall_ns: How long without progress makes a head stuck.
@@ -92,7 +102,7 @@ class ProgressMonitor:
     def __init__(self, stall_ns: int, started_ns: int) -> None:
         self._stall_ns = stall_ns
         self._started_ns = started_ns
-        self._processed: dict[str, int] = {}
+        self._finished: dict[str, int] = {}
         self._progress_ns: dict[str, int] = {}
         self._captured_then: dict[str, int] = {}
 
@@ -109,8 +119,8 @@ class ProgressMonitor:
         stuck: dict[str, str] = {}
         for head in heads:
             name = head.name
-            if head.processed != self._processed.get(name, 0):
-                self._processed[name] = head.processed
+            if head.finished != self._finished.get(name, 0):
+                self._finished[name] = head.finished
                 self._progress_ns[name] = now_ns
                 self._captured_then[name] = head.captured
             idle_ns = now_ns - self._progress_ns.get(name, self._started_ns)
