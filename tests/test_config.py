@@ -35,6 +35,7 @@ from avoidd.config import (
     SadConfig,
     SectorsConfig,
     SegmentConfig,
+    ServiceConfig,
     SgbmConfig,
     SigningConfig,
     StreamsConfig,
@@ -399,6 +400,9 @@ mavlink:
 pipeline:
   #@ pipeline
   max_age_ms: 300
+service:
+  #@ service
+  ready_timeout_s: 10
 perception:
   #@ perception
   ground:
@@ -451,6 +455,7 @@ SECTION_MODELS: dict[str, type[BaseModel]] = {
     "mavlink.streams": StreamsConfig,
     "mavlink.signing": SigningConfig,
     "pipeline": PipelineConfig,
+    "service": ServiceConfig,
     "perception": PerceptionConfig,
     "perception.ground": GroundConfig,
     "perception.band": BandConfig,

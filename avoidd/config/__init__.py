@@ -25,6 +25,7 @@ from avoidd.config.perception import (
     PerceptionConfig,
     TemporalConfig,
 )
+from avoidd.config.service import ServiceConfig
 from avoidd.config.sources import (
     FilesSourceConfig,
     SourceConfig,
@@ -76,6 +77,7 @@ __all__ = [
     "SadConfig",
     "SectorsConfig",
     "SegmentConfig",
+    "ServiceConfig",
     "SgbmConfig",
     "SigningConfig",
     "SourceConfig",

@@ -12,6 +12,7 @@ from avoidd.config.base import Strict, WholeNumber
 from avoidd.config.head import HeadConfig
 from avoidd.config.mavlink import MavlinkConfig
 from avoidd.config.perception import PerceptionConfig
+from avoidd.config.service import ServiceConfig
 from avoidd.yamlfile import load_yaml, validate_document
 
 
@@ -41,6 +42,7 @@ class AppConfig(Strict):
     pipeline: PipelineConfig = PipelineConfig()
     perception: PerceptionConfig = PerceptionConfig()
     avoidance: AvoidanceConfig = AvoidanceConfig()
+    service: ServiceConfig = ServiceConfig()
 
     @field_validator("heads")
     @classmethod

@@ -18,8 +18,10 @@ from avoidd.daemon import health
 from avoidd.daemon.announce import Announcer, send_statustext
 from avoidd.daemon.avoidance import AvoidanceLoop
 from avoidd.daemon.head import Head, OpenSource
+from avoidd.daemon.notify import Notifier, watchdog_interval_s
 from avoidd.daemon.outputs import Outputs
 from avoidd.daemon.stats import DaemonStats, log_every, snapshot
+from avoidd.daemon.systemd import ServiceReporter
 from avoidd.errors import AvoiddError
 from avoidd.mavlink import codec as mav
 from avoidd.mavlink.link import MavLink
@@ -255,6 +257,16 @@ class Daemon:
         loops["vehicle"] = self.vehicle.run()
         if self.config.mavlink.signing is not None:
             loops["signing"] = self._signing_loop()
+        notifier = Notifier.from_environment()  # under systemd (Type=notify)
+        if notifier is not None:
+            reporter = ServiceReporter(
+                notifier,
+                self.config.service,
+                self.heads,
+                lambda previous: self.snapshot(time.monotonic_ns(), previous),
+                watchdog_interval_s(),
+            )
+            loops["systemd"] = reporter.run()
         return loops
 
     def _stale_heads(self, now_ns: int) -> frozenset[str] | None:

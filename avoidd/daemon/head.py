@@ -102,6 +102,8 @@ class Head:
         """When the source last delivered a frame (local monotonic)."""
         self.arrival_age_ns: int | None = None
         """How old that frame was when it arrived (its capture time to delivery)."""
+        self.reading_since_ns: int | None = None
+        """When the read in progress started, None between reads (a wedged source shows)."""
         self._stop = stop
         self._announce = announce
         self._thread = threading.Thread(target=self._capture, name=f"capture-{self.name}")
@@ -176,7 +178,7 @@ class Head:
                 logger.info("head '%s': reading %s", self.name, source.description)
                 backoff_s = low_s
             try:
-                frame = source.read()
+                frame = self._read(source)
             except BrokenFrame as exc:
                 self.stats.broken += 1
                 self._frame_broken(exc)
@@ -211,6 +213,14 @@ class Head:
         if source is not None:
             with contextlib.suppress(Exception):
                 source.close()
+
+    def _read(self, source: FrameSource) -> StereoFrame:
+        """Read a frame, noting when the read started while it lasts."""
+        self.reading_since_ns = time.monotonic_ns()
+        try:
+            return source.read()
+        finally:
+            self.reading_since_ns = None
 
     def _frame_broken(self, exc: BrokenFrame) -> None:
         """Log an unreadable frame once per run of them; a long run means the camera is lost."""
