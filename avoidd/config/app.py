@@ -9,6 +9,7 @@ from pydantic import Field, field_validator
 
 from avoidd.config.avoidance import AvoidanceConfig
 from avoidd.config.base import Strict, WholeNumber
+from avoidd.config.debug_server import DebugServerConfig
 from avoidd.config.head import HeadConfig
 from avoidd.config.mavlink import MavlinkConfig
 from avoidd.config.perception import PerceptionConfig
@@ -37,6 +38,7 @@ class AppConfig(Strict):
     pipeline: PipelineConfig = PipelineConfig()
     perception: PerceptionConfig = PerceptionConfig()
     avoidance: AvoidanceConfig = AvoidanceConfig()
+    debug_server: DebugServerConfig = DebugServerConfig()
 
     @field_validator("heads")
     @classmethod
