@@ -10,7 +10,7 @@ import threading
 import time
 from collections import Counter
 from collections.abc import Coroutine
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 from avoidd import sources
 from avoidd.config import AppConfig, MavlinkConfig
@@ -28,6 +28,9 @@ from avoidd.mavlink.vehicle import Vehicle
 from avoidd.perception.pose import resolve_pose
 from avoidd.types import FramePose, StereoFrame
 from avoidd.vision.calibration import Calibration
+
+if TYPE_CHECKING:
+    from avoidd.debugview.server import DebugServer
 
 logger = logging.getLogger(__name__)
 
@@ -106,6 +109,8 @@ class Daemon:
         self._max_age_ns = config.pipeline.max_age_ms * 1_000_000
         self._reported: dict[str, health.Reported] = {}
         self._started_ns = 0
+        self.debug_server: DebugServer | None = None
+        """The debug view, when ``debug_server.enabled`` (built when :meth:`run` starts)."""
 
     @property
     def sent(self) -> Counter[str]:
@@ -255,6 +260,11 @@ class Daemon:
         loops["vehicle"] = self.vehicle.run()
         if self.config.mavlink.signing is not None:
             loops["signing"] = self._signing_loop()
+        if self.config.debug_server.enabled:
+            from avoidd.debugview.server import DebugServer  # aiohttp only when enabled
+
+            self.debug_server = DebugServer(self.config.debug_server, self)
+            loops["debug-server"] = self.debug_server.run()
         return loops
 
     def _stale_heads(self, now_ns: int) -> frozenset[str] | None:
