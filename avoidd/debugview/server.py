@@ -199,6 +199,7 @@ class DebugServer:
         await runner.setup()
         try:
             await self._bind(runner)
+            self._previous = self._snapshot()  # the first /api/stats has rates since now
             addresses = runner.addresses
             self.port = int(addresses[0][1]) if addresses else self.config.port
             host = self.config.host
@@ -216,7 +217,7 @@ class DebugServer:
 
     async def _bind(self, runner: web.AppRunner) -> web.TCPSite:
         while True:
-            site = web.TCPSite(runner, self.config.host, self.config.port, shutdown_timeout=1.0)
+            site = web.TCPSite(runner, self.config.host, self.config.port)
             try:
                 await site.start()
                 return site
