@@ -79,7 +79,11 @@ def to_bgr(image: Image) -> Image:
 
 
 def obstacle_boxes(
-    mask: BoolArray, depth_m: FloatArray, min_area_fraction: float = 0.001, limit: int = 8
+    mask: BoolArray,
+    depth_m: FloatArray,
+    min_area_fraction: float = 0.001,
+    limit: int = 8,
+    step: int = 2,
 ) -> list[Box]:
     """Outline the obstacle pixels: their connected regions, nearest first.
 
@@ -88,28 +92,33 @@ def obstacle_boxes(
         depth_m: The depth map of the same size.
         min_area_fraction: Regions smaller than this share of the image are left out.
         limit: At most this many boxes.
+        step: Regions are found on every ``step``-th row and column (a quarter of the work
+            for 2; boxes are that coarse).
 
     Returns:
         The boxes, nearest first.
     """
     if mask.shape != depth_m.shape or not mask.any():
         return []
+    small_mask, small_depth = mask[::step, ::step], depth_m[::step, ::step]
     joined = cv2.morphologyEx(
-        mask.astype(np.uint8), cv2.MORPH_CLOSE, np.ones((5, 5), dtype=np.uint8)
+        small_mask.astype(np.uint8), cv2.MORPH_CLOSE, np.ones((3, 3), dtype=np.uint8)
     )
     count, labels, stats, _ = cv2.connectedComponentsWithStats(joined, connectivity=8)
-    min_area = max(20, int(min_area_fraction * mask.size))
+    min_area = max(5, int(min_area_fraction * small_mask.size))
     boxes = []
     for label in range(1, count):
         x, y, w, h, area = (int(v) for v in stats[label])
         if area < min_area:
             continue
         window = labels[y : y + h, x : x + w] == label
-        values = depth_m[y : y + h, x : x + w][window & mask[y : y + h, x : x + w]]
+        window &= small_mask[y : y + h, x : x + w]
+        values = small_depth[y : y + h, x : x + w][window]
         values = values[np.isfinite(values)]
         if values.size == 0:
             continue
-        boxes.append(Box(x, y, w, h, float(np.percentile(values, 5.0))))
+        distance = float(np.percentile(values, 5.0))
+        boxes.append(Box(x * step, y * step, w * step, h * step, distance))
     boxes.sort(key=lambda b: b.distance_m)
     return boxes[:limit]
 
@@ -166,14 +175,14 @@ def depth_panel(depth_m: FloatArray, max_range_m: float, ticks_m: float = 5.0) -
         A BGR image of the map's size, the legend on its right edge.
     """
     height, width = depth_m.shape
-    finite = np.isfinite(depth_m)
-    measured = ~np.isnan(depth_m)
-    scaled = np.zeros(depth_m.shape, dtype=np.float32)
-    np.divide(depth_m, np.float32(max_range_m), out=scaled, where=finite)
-    scaled[measured & ~finite] = 1.0
-    index = (255.0 - 255.0 * np.clip(scaled, 0.0, 1.0)).astype(np.uint8)
-    image = np.asarray(cv2.applyColorMap(index, cv2.COLORMAP_TURBO), dtype=np.uint8)
-    image[~measured] = 0
+    # 255 at 0 m down to 0 at the range and beyond (inf too); NaN is blacked out after.
+    # (OpenCV calls throughout: boolean indexing of a 640x480 map cost milliseconds.)
+    scaled = depth_m * np.float32(-255.0 / max_range_m) + np.float32(255.0)
+    np.clip(scaled, 0.0, 255.0, out=scaled)
+    measured = cv2.compare(depth_m, depth_m, cv2.CMP_EQ)  # 0 where NaN
+    cv2.patchNaNs(scaled, 0.0)
+    colours = cv2.applyColorMap(scaled.astype(np.uint8), cv2.COLORMAP_TURBO)
+    image = np.asarray(cv2.bitwise_and(colours, colours, mask=measured), dtype=np.uint8)
     # Legend: a bar from 0 m (top) to the range (bottom) with labels.
     bar_w, margin = 14, 8
     top, bottom = margin + 14, height - margin

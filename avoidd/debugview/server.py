@@ -76,7 +76,7 @@ class DebugServer:
                 self.counter.encodes,
             ),
             "avoidd_debugview_encode_seconds": (
-                "Time spent drawing and encoding them.",
+                "CPU time spent drawing and encoding them.",
                 self.counter.seconds,
             ),
         }

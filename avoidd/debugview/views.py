@@ -27,7 +27,7 @@ _STALE_SEND_NS = 500_000_000  # both autopilots drop the data 0.5 s after the la
 
 @dataclass
 class EncodeCounter:
-    """JPEG pictures encoded, and the time spent drawing and encoding them."""
+    """JPEG pictures encoded, and the CPU time spent drawing and encoding them."""
 
     encodes: int = 0
     seconds: float = 0.0
@@ -68,12 +68,12 @@ class Stream:
         self._cached: bytes | None = None
 
     def _encode(self) -> bytes | None:
-        start = time.perf_counter()
+        start = time.thread_time()  # CPU of this worker thread: what drawing costs
         image = self._draw()
         if image is None:
             return None
         data = render.encode_jpeg(image, self._quality)
-        self._counter.add(time.perf_counter() - start)
+        self._counter.add(time.thread_time() - start)
         return data
 
     async def jpeg(self) -> bytes | None:
@@ -181,8 +181,9 @@ def polar_stream(daemon: Daemon, quality: int, counter: EncodeCounter) -> Stream
         return polar_status(sent_ns, time.monotonic_ns(), withheld, planner)
 
     def key() -> Hashable | None:
-        _, sent_ns = sent_scan(daemon)
-        return (sent_ns, status(), planner_bearings(daemon))
+        # The content, not the time: a steady scene is drawn once, not at every message.
+        scan, _ = sent_scan(daemon)
+        return (scan, status(), planner_bearings(daemon))
 
     def draw() -> Image:
         scan, _ = sent_scan(daemon)
