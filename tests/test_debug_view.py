@@ -150,6 +150,30 @@ def test_obstacle_boxes_outline_regions_nearest_first() -> None:
     assert render.depth_panel(depth, 20.0).shape == (120, 160, 3)
 
 
+def test_planner_arrows_are_turned_into_the_body_frame() -> None:
+    from types import SimpleNamespace
+
+    from avoidd.debugview.views import planner_bearings
+    from avoidd.mavlink.attitude import Attitude
+    from avoidd.planner.core import Decision, Goal
+
+    decision = Decision((1.0, 0.0, 0.0), 0.0, "moving", direction_deg=30.0)
+    daemon: Any = SimpleNamespace(
+        avoidance=SimpleNamespace(
+            config=SimpleNamespace(enabled=True), goal=Goal(10.0, 10.0, 2.0), last_decision=decision
+        ),
+        vehicle=SimpleNamespace(
+            attitude_at=lambda t_ns: Attitude(t_ns, 0.0, 0.0, np.radians(90.0)),
+            position=SimpleNamespace(north_m=0.0, east_m=0.0),
+        ),
+    )
+    goal_deg, direction_deg = planner_bearings(daemon)  # heading east
+    assert goal_deg == pytest.approx(45.0 - 90.0)
+    assert direction_deg == pytest.approx(30.0 - 90.0)
+    daemon.vehicle.attitude_at = lambda t_ns: None  # no yaw: no arrows
+    assert planner_bearings(daemon) == (None, None)
+
+
 # --- a real daemon with its debug view -------------------------------------------------------
 
 
