@@ -353,6 +353,11 @@ def test_streams_are_encoded_only_while_watched(tmp_path: Path) -> None:
         encodes = rig.server.counter.encodes
         time.sleep(1.0)
         assert rig.server.counter.encodes == encodes
+        # A viewer still watching does not hold up the daemon's shutdown.
+        watching = http.client.HTTPConnection("127.0.0.1", rig.server.port, timeout=10)
+        watching.request("GET", "/stream/polar.mjpg")
+        assert len(read_parts(watching.getresponse(), 1)) == 1
+    watching.close()
 
 
 # --- the page in a real browser --------------------------------------------------------------
