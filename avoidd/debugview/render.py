@@ -42,7 +42,7 @@ class Box:
         y: Top row.
         width: Width in pixels.
         height: Height in pixels.
-        distance_m: Depth of its nearest part (5th percentile of its measured pixels).
+        distance_m: Its range from the camera (25th percentile of its measured pixels).
     """
 
     x: int
@@ -78,18 +78,31 @@ def to_bgr(image: Image) -> Image:
     return image.copy()
 
 
+def range_per_depth(width: int, cx: float, fx: float) -> FloatArray:
+    """(W,) range from the camera per metre of depth in each column: ``sqrt(1 + xn^2)``."""
+    xn = (np.arange(width, dtype=np.float32) - np.float32(cx)) / np.float32(fx)
+    return np.asarray(np.sqrt(1.0 + xn * xn), dtype=np.float32)
+
+
 def obstacle_boxes(
     mask: BoolArray,
     depth_m: FloatArray,
+    range_factor: FloatArray | None = None,
     min_area_fraction: float = 0.001,
     limit: int = 8,
     step: int = 2,
 ) -> list[Box]:
     """Outline the obstacle pixels: their connected regions, nearest first.
 
+    A region's distance is the 25th percentile of its pixels' ranges: lower percentiles
+    picked up the errors stereo matching makes at a thin object's edges (the demo's pole,
+    9.7 m away, read more than a metre short at the 5th).
+
     Args:
         mask: (H, W) True at obstacle points (see ``HeadResult.obstacle_mask``).
         depth_m: The depth map of the same size.
+        range_factor: (W,) range per metre of depth by column (see :func:`range_per_depth`);
+            None: distances are depths.
         min_area_fraction: Regions smaller than this share of the image are left out.
         limit: At most this many boxes.
         step: Regions are found on every ``step``-th row and column (a quarter of the work
@@ -101,6 +114,8 @@ def obstacle_boxes(
     if mask.shape != depth_m.shape or not mask.any():
         return []
     small_mask, small_depth = mask[::step, ::step], depth_m[::step, ::step]
+    if range_factor is not None:
+        small_depth = small_depth * range_factor[::step][None, :]
     joined = cv2.morphologyEx(
         small_mask.astype(np.uint8), cv2.MORPH_CLOSE, np.ones((3, 3), dtype=np.uint8)
     )
@@ -117,7 +132,7 @@ def obstacle_boxes(
         values = values[np.isfinite(values)]
         if values.size == 0:
             continue
-        distance = float(np.percentile(values, 5.0))
+        distance = float(np.percentile(values, 25.0))
         boxes.append(Box(x * step, y * step, w * step, h * step, distance))
     boxes.sort(key=lambda b: b.distance_m)
     return boxes[:limit]

@@ -98,7 +98,9 @@ def head_picture(head: Head, max_range_m: float) -> Image | None:
     depth = latest.filled_depth_m if latest.filled_depth_m is not None else latest.depth_m
     boxes = []
     if latest.obstacle_mask is not None:
-        boxes = render.obstacle_boxes(latest.obstacle_mask, latest.depth_m)
+        rig = head.pipeline.work_rig
+        factor = render.range_per_depth(latest.depth_m.shape[1], rig.cx, rig.fx)
+        boxes = render.obstacle_boxes(latest.obstacle_mask, latest.depth_m, factor)
     caption = f"{head.name}  frame {latest.seq}  valid {100 * latest.valid_fraction:.0f}%"
     return render.side_by_side(
         [
