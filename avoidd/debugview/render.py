@@ -28,6 +28,8 @@ INVALID_BGR = (220, 60, 220)
 """A value neither unknown, clear nor in [min, max] (the autopilot ignores it)."""
 GOAL_BGR = (235, 200, 40)
 DIRECTION_BGR = (40, 220, 255)
+BEYOND_BGR = (60, 60, 60)
+"""The plot's disc: beyond a reading (hidden behind it)."""
 BACKGROUND_BGR = (32, 24, 24)
 _TEXT_BGR = (235, 235, 235)
 _FONT = cv2.FONT_HERSHEY_SIMPLEX
@@ -298,7 +300,7 @@ def polar_panel(
     radius = size_px // 2 - 30
     max_cm = sent.max_cm if sent is not None else 2000
     max_m = max_cm / 100.0
-    cv2.circle(image, (cx, cy), radius, (60, 60, 60), -1, cv2.LINE_AA)
+    cv2.circle(image, (cx, cy), radius, BEYOND_BGR, -1, cv2.LINE_AA)
     if sent is not None:
         bins = round(360.0 / sent.increment_deg)
         half = sent.increment_deg / 2.0
@@ -334,6 +336,7 @@ def polar_panel(
     y = 50
     legend = [
         (NEAR_BGR, "reading (to its distance)"),
+        (BEYOND_BGR, "beyond a reading"),
         (CLEAR_BGR, "clear (max + 1)"),
         (UNKNOWN_BGR, "unknown (65535)"),
         (INVALID_BGR, "invalid (ignored)"),
