@@ -14,6 +14,7 @@ from avoidd.perception.obstacles import Obstacle
 from avoidd.perception.perceive import perceive
 from avoidd.perception.pose import resolve_pose
 from avoidd.types import (
+    BoolArray,
     FloatArray,
     FramePose,
     Image,
@@ -68,6 +69,9 @@ class HeadResult:
         pose: Attitude and height the frame was interpreted with.
         obstacle_points: Points left after ground and band rejection.
         near_pixels: Pixels measured by the near-field pass (nearer than the main range).
+        left_view: The rectified left view the matcher saw (grey, the depth map's size), for
+            display.
+        obstacle_mask: Pixels of the depth map kept as obstacle points, for display.
     """
 
     head: str
@@ -83,6 +87,8 @@ class HeadResult:
     pose: FramePose | None = None
     obstacle_points: int = 0
     near_pixels: int = 0
+    left_view: Image | None = field(default=None, repr=False)
+    obstacle_mask: BoolArray | None = field(default=None, repr=False)
 
 
 class Laps:
@@ -295,4 +301,6 @@ class HeadPipeline:
             seen.pose,
             seen.candidates,
             near_pixels,
+            left,
+            seen.candidate_mask,
         )

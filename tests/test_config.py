@@ -16,6 +16,7 @@ from avoidd.config import (
     AvoidanceConfig,
     BandConfig,
     CensusConfig,
+    DebugServerConfig,
     DistanceSensorConfig,
     FilesSourceConfig,
     GoalConfig,
@@ -428,6 +429,9 @@ avoidance:
     north_m: 10
     east_m: 0
     altitude_m: 2
+debug_server:
+  #@ debug_server
+  enabled: false
 """
 
 SECTION_MODELS: dict[str, type[BaseModel]] = {
@@ -464,6 +468,7 @@ SECTION_MODELS: dict[str, type[BaseModel]] = {
     "perception.obstacles": ObstaclesConfig,
     "avoidance": AvoidanceConfig,
     "avoidance.goal": GoalConfig,
+    "debug_server": DebugServerConfig,
 }
 
 

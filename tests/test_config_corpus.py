@@ -92,6 +92,13 @@ CASES = [
     ),
     ("version: 1\n", "version: 1\navoidance: {goal: {north_m: 1, east_m: 2}}\n", "avoidance.goal"),
     ("calibration: CAL", "calibration: /nonexistent/cal.yaml", "calibration"),
+    ("host: 127.0.0.1, port: 8080", "host: 0.0.0.0, port: 8080", "debug_server.host"),
+    (
+        "enabled: false, host: 127.0.0.1",
+        "enabled: false, allow_remote: true, host: 192.168.4.1",
+        "debug_server.host",
+    ),
+    ("port: 8080}", "port: 80800}", "debug_server.port"),
     ("version: 1\n", "version: 1\nversion: 1\n", "version"),
     ("pipeline:\n", "pipeline:\n\tmax_age_ms: 300\n", "YAML syntax error"),
     ("band: {above_m: 2.0", "band: {above_m: [2.0", "YAML syntax error"),

@@ -22,6 +22,7 @@ def _head(name: str, processed: int, skipped: int, broken: int, latency_ms: list
         stats=stats,
         slot=SimpleNamespace(skipped=skipped),
         t_capture_ns=None,
+        latest=None,
         fresh_scan=lambda now_ns, max_age_ns: None,
     )
 

@@ -32,6 +32,7 @@ COMMANDS: dict[str, tuple[str, str]] = {
     "bench": ("bench", "per-stage milliseconds of each matcher next to bare OpenCV SGBM"),
     "bench-link": ("bench", "measure CPU for decoding a stream of incoming MAVLink"),
     "bench-sim": ("bench", "simulator render rate, planner cost, lockstep scenario time"),
+    "bench-debugview": ("bench", "CPU of the debug view: off, on without a viewer, with one"),
     "sim": ("sim", "closed-loop scenarios in the simulator: run one, or a batch"),
     "goto": ("goto", "send the running avoidd a goal, as a ground station does"),
     "calibrate": ("calibrate", "stereo calibration from left/ and right/ images of a board"),

@@ -1,4 +1,4 @@
-"""``avoidd bench`` (vision stages next to bare OpenCV SGBM, or the daemon), ``bench-link``."""
+"""The bench commands: ``bench``, ``bench-link``, ``bench-sim`` and ``bench-debugview``."""
 
 from __future__ import annotations
 
@@ -41,6 +41,19 @@ def configure(name: str, parser: argparse.ArgumentParser) -> None:
             "--seconds", type=float, default=10.0, help="with --daemon: the measured window"
         )
         parser.set_defaults(handler=run_vision_bench)
+    elif name == "bench-debugview":
+        parser.add_argument(
+            "--config",
+            type=Path,
+            default=Path("config/demo.yaml"),
+            help="the daemon configuration to run (default: config/demo.yaml)",
+        )
+        parser.add_argument(
+            "--seconds", type=float, default=20.0, help="length of each measured window"
+        )
+        parser.add_argument("--stream-fps", type=float, default=10.0, help="the view's frame rate")
+        parser.add_argument("--json", type=Path, help="also write the figures as JSON")
+        parser.set_defaults(handler=run_debugview_bench)
     elif name == "bench-sim":
         parser.add_argument("--frames", type=int, default=20, help="pairs rendered per size")
         parser.add_argument("--cycles", type=int, default=600, help="planner cycles")
@@ -100,6 +113,17 @@ def run_link_bench(args: argparse.Namespace) -> int:
     from avoidd.bench.link import format_report, run_bench
 
     report = asyncio.run(run_bench(args.rate, args.seconds, args.asked))
+    print(format_report(report))
+    if args.json is not None:
+        args.json.write_text(json.dumps(report, indent=2) + "\n")
+    return EXIT_OK
+
+
+def run_debugview_bench(args: argparse.Namespace) -> int:
+    """Measure the daemon's CPU with the debug view off, unwatched and watched; print it."""
+    from avoidd.bench.debugview import format_report, run_bench
+
+    report = asyncio.run(run_bench(args.config, args.seconds, args.stream_fps))
     print(format_report(report))
     if args.json is not None:
         args.json.write_text(json.dumps(report, indent=2) + "\n")

@@ -8,6 +8,7 @@ from avoidd.config.app import AppConfig, PipelineConfig, load_config
 from avoidd.config.avoidance import AvoidanceConfig, GoalConfig
 from avoidd.config.base import ConfigPath, Strict
 from avoidd.config.connection import LinkSpec, parse_connection
+from avoidd.config.debug_server import DebugServerConfig
 from avoidd.config.head import HeadConfig, MountConfig
 from avoidd.config.mavlink import (
     DistanceSensorConfig,
@@ -55,6 +56,7 @@ __all__ = [
     "BandConfig",
     "CensusConfig",
     "ConfigPath",
+    "DebugServerConfig",
     "DisparityRange",
     "DistanceSensorConfig",
     "FilesSourceConfig",

@@ -9,6 +9,7 @@ from pydantic import Field, field_validator
 
 from avoidd.config.avoidance import AvoidanceConfig
 from avoidd.config.base import Strict, WholeNumber
+from avoidd.config.debug_server import DebugServerConfig
 from avoidd.config.head import HeadConfig
 from avoidd.config.mavlink import MavlinkConfig
 from avoidd.config.perception import PerceptionConfig
@@ -43,6 +44,7 @@ class AppConfig(Strict):
     perception: PerceptionConfig = PerceptionConfig()
     avoidance: AvoidanceConfig = AvoidanceConfig()
     service: ServiceConfig = ServiceConfig()
+    debug_server: DebugServerConfig = DebugServerConfig()
 
     @field_validator("heads")
     @classmethod

@@ -10,7 +10,7 @@ import threading
 import time
 from collections import Counter
 from collections.abc import Coroutine
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 from avoidd import sources
 from avoidd.config import AppConfig, MavlinkConfig
@@ -30,6 +30,9 @@ from avoidd.mavlink.vehicle import Vehicle
 from avoidd.perception.pose import resolve_pose
 from avoidd.types import FramePose, StereoFrame
 from avoidd.vision.calibration import Calibration
+
+if TYPE_CHECKING:
+    from avoidd.debugview.server import DebugServer
 
 logger = logging.getLogger(__name__)
 
@@ -108,6 +111,8 @@ class Daemon:
         self._max_age_ns = config.pipeline.max_age_ms * 1_000_000
         self._reported: dict[str, health.Reported] = {}
         self._started_ns = 0
+        self.debug_server: DebugServer | None = None
+        """The debug view, when ``debug_server.enabled`` (built when :meth:`run` starts)."""
 
     @property
     def sent(self) -> Counter[str]:
@@ -267,6 +272,11 @@ class Daemon:
                 watchdog_interval_s(),
             )
             loops["systemd"] = reporter.run()
+        if self.config.debug_server.enabled:
+            from avoidd.debugview.server import DebugServer  # aiohttp only when enabled
+
+            self.debug_server = DebugServer(self.config.debug_server, self)
+            loops["debug-server"] = self.debug_server.run()
         return loops
 
     def _stale_heads(self, now_ns: int) -> frozenset[str] | None:

@@ -84,6 +84,8 @@ class Outputs:
         self.vehicle = vehicle
         self.withheld = 0
         """OBSTACLE_DISTANCE messages not sent for want of fresh data."""
+        self.last_sent: tuple[int, Message] | None = None
+        """The last OBSTACLE_DISTANCE sent and when (monotonic ns), for the debug view."""
         self._last_usec = 0
         nearest_m = max((head.pipeline.min_range_m for head in heads), default=0.0)
         self.min_cm, self.max_cm = config.obstacle_distance.range_cm(nearest_m)
@@ -143,9 +145,11 @@ class Outputs:
         """Send OBSTACLE_DISTANCE at its rate (see :meth:`obstacle_distance_message`)."""
 
         def send() -> None:
-            message = self.obstacle_distance_message(time.monotonic_ns())
+            now_ns = time.monotonic_ns()
+            message = self.obstacle_distance_message(now_ns)
             if message is not None:
                 self.link.send(message)
+                self.last_sent = (now_ns, message)
 
         await every(self.config.obstacle_distance.rate_hz, send)
 

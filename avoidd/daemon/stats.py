@@ -10,7 +10,7 @@ import asyncio
 import logging
 import statistics
 from collections.abc import Callable, Mapping, Sequence
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from types import MappingProxyType
 
 from avoidd.daemon.head import Head
@@ -43,6 +43,8 @@ class HeadSnapshot:
         mean_latency_ms: Mean capture-to-result time of the last processed frames (0.0 before
             the first).
         stale: Whether the head has no fresh data (regardless of the boot grace).
+        stage_ms: Milliseconds of each pipeline stage on the latest processed frame (empty
+            before the first).
     """
 
     name: str
@@ -58,6 +60,7 @@ class HeadSnapshot:
     fps: float
     mean_latency_ms: float
     stale: bool
+    stage_ms: Mapping[str, float] = field(default_factory=lambda: MappingProxyType({}))
 
 
 @dataclass(frozen=True)
@@ -138,6 +141,7 @@ def snapshot(
     for head in heads:
         processed, skipped, broken = head.stats.processed, head.slot.skipped, head.stats.broken
         latency_ms = head.stats.latency_ms
+        latest = head.latest
         old = before.get(head.name)
         processed_in = processed - (old.processed if old is not None else 0)
         head_stats.append(
@@ -155,6 +159,7 @@ def snapshot(
                 fps=processed_in / interval_s if interval_s > 0 else 0.0,
                 mean_latency_ms=statistics.fmean(latency_ms) if latency_ms else 0.0,
                 stale=not is_fresh(head.t_capture_ns, now_ns, max_age_ns),
+                stage_ms=MappingProxyType(dict(latest.timing_ms) if latest is not None else {}),
             )
         )
     scan = current_scan(heads, now_ns, max_age_ns)

@@ -14,7 +14,7 @@ from avoidd.perception.frames import Matrix, Pose, body_to_level, camera_to_leve
 from avoidd.perception.ground import obstacle_points
 from avoidd.perception.obstacles import Obstacle, cluster_obstacles
 from avoidd.perception.sectors import Candidates, sector_scan
-from avoidd.types import FloatArray, FramePose, Mount, RectifiedRig, SectorScan
+from avoidd.types import BoolArray, FloatArray, FramePose, Mount, RectifiedRig, SectorScan
 
 
 class Perception(NamedTuple):
@@ -25,12 +25,14 @@ class Perception(NamedTuple):
         obstacles: Its obstacles, nearest first (empty unless asked for).
         candidates: Obstacle points (after ground and band rejection).
         pose: The attitude and height the frame was interpreted with.
+        candidate_mask: (H, W) True at the pixels of those obstacle points.
     """
 
     scan: SectorScan
     obstacles: list[Obstacle]
     candidates: int
     pose: FramePose
+    candidate_mask: BoolArray | None = None
 
 
 def perceive(
@@ -115,4 +117,4 @@ def perceive(
             sectors,
             histogram,
         )
-    return Perception(scan, obstacles, int(forward.size), pose)
+    return Perception(scan, obstacles, int(forward.size), pose, points.mask)
