@@ -13,7 +13,14 @@ LAYERS: list[tuple[str, tuple[str, ...]]] = [
     ("commands", ("avoidd.commands",)),
     (
         "runtimes",
-        ("avoidd.daemon", "avoidd.replay", "avoidd.sim", "avoidd.evaluation", "avoidd.bench"),
+        (
+            "avoidd.daemon",
+            "avoidd.replay",
+            "avoidd.record",
+            "avoidd.sim",
+            "avoidd.evaluation",
+            "avoidd.bench",
+        ),
     ),
     ("services", ("avoidd.pipeline", "avoidd.planner", "avoidd.service", "avoidd.loading")),
     (
