@@ -22,6 +22,7 @@ import asyncio
 import contextlib
 import logging
 import math
+import os
 import queue
 import shutil
 import signal
@@ -284,6 +285,7 @@ class Recorder:
         self._heads[head].queue.put((frame, state, size))
 
     def _write_loop(self, head: str) -> None:
+        _lower_priority()
         folder = self._heads[head]
         while True:
             item = folder.queue.get()
@@ -380,6 +382,19 @@ class Recorder:
             f"{name} {c.recorded} frames ({c.dropped} dropped)" for name, c in self.counts.items()
         ]
         return f"{', '.join(parts)}; {self.total_bytes / 1e6:.1f} MB in {self.folder}"
+
+
+def _lower_priority() -> None:
+    """Make the calling thread yield the CPU to the pipeline (Linux: a thread's own nice).
+
+    Encoding PNG takes a core's worth at camera rates; a recording that falls behind drops
+    frames, while a pipeline that falls behind sends stale data.
+    """
+    if not hasattr(os, "setpriority"):
+        return
+    with contextlib.suppress(OSError):
+        tid = threading.get_native_id()
+        os.setpriority(os.PRIO_PROCESS, tid, min(os.getpriority(os.PRIO_PROCESS, tid) + 10, 19))
 
 
 def expand_folder(pattern: Path) -> Path:
