@@ -37,13 +37,14 @@ import cv2
 import yaml
 
 from avoidd import sources
-from avoidd.config import AppConfig, PerceptionConfig
+from avoidd.config import AppConfig, MavlinkConfig, PerceptionConfig
 from avoidd.daemon.announce import Announcer, send_statustext
 from avoidd.daemon.core import build_link
 from avoidd.daemon.head import Head, OpenSource
 from avoidd.errors import AvoiddError, ConfigError
 from avoidd.mavlink import codec as mav
 from avoidd.mavlink.link import MavLink
+from avoidd.mavlink.signing import TimestampStore, load_key
 from avoidd.mavlink.vehicle import Vehicle
 from avoidd.perception.pose import resolve_pose
 from avoidd.types import FramePose, StereoFrame
@@ -499,6 +500,7 @@ async def record(
 
     recorder.on_stop = stop_from_writer
     link = link if link is not None else build_link(config.mavlink)
+    timestamps = _enable_signing(link, config.mavlink)
     announcer = Announcer(loop)
     vehicle = Vehicle(link, config.mavlink, announcer)
     pose_for = pose_resolver(vehicle, config.perception)
@@ -563,10 +565,27 @@ async def record(
             task.cancel()
         await asyncio.gather(*tasks, return_exceptions=True)
         await link.close()
+        timestamps.keep(link.codec.signing_timestamp)
     logger.info(
         "recording stopped: %s; %s", reason[0] if reason else "cancelled", recorder.summary()
     )
     return 1 if recorder.failed else 0
+
+
+def _enable_signing(link: MavLink, config: MavlinkConfig) -> TimestampStore:
+    """Sign as the daemon does when ``mavlink.signing`` is configured.
+
+    A signing autopilot ignores an unsigned recorder. Returns where the signing timestamp is
+    kept.
+    """
+    signing = config.signing
+    if signing is None:
+        return TimestampStore(None)
+    key = load_key(signing.key_file, signing.key_credential)
+    allowed = {mav.message_id(name) for name in signing.allow_unsigned}
+    timestamps = TimestampStore(signing.timestamp_file)
+    link.codec.enable_signing(key, timestamps.start(), allowed.__contains__, signing.link_id)
+    return timestamps
 
 
 async def _heartbeats(link: MavLink, rate_hz: float) -> None:
