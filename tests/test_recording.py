@@ -365,3 +365,28 @@ def test_the_recorded_config_keeps_no_signing_key_and_loads(tmp_path: Path) -> N
     assert replayed.mavlink.signing is None
     assert replayed.heads[0].source.kind == "files"
     assert calibrations["front"].rig == RIG
+
+
+def test_record_signs_for_a_signing_autopilot(tmp_path: Path) -> None:
+    key = tmp_path / "signing.key"
+    key.write_text("5a" * 32)
+    port = free_udp_port()
+    mock = avoidd(
+        "mock-autopilot", "--system-id", "7", "--key-file", str(key), f"udpin:127.0.0.1:{port}"
+    )
+    try:
+        time.sleep(0.5)
+        config = synthetic_config(
+            tmp_path,
+            f"udpout:127.0.0.1:{port}",
+            source=SOURCE,
+            mavlink={"signing": {"key_file": "signing.key"}},
+        )
+        rec = tmp_path / "rec"
+        process = avoidd("record", "--config", str(config), "--out", str(rec), "--duration", "3")
+        _, err = process.communicate(timeout=120)
+        assert process.returncode == 0, err
+    finally:
+        mock.send_signal(signal.SIGINT)
+        mock.communicate(timeout=30)
+    assert any(r["yaw_deg"] for r in assert_consistent(rec / "front"))
