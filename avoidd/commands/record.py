@@ -17,10 +17,13 @@ def configure(name: str, parser: argparse.ArgumentParser) -> None:
         "--out",
         type=Path,
         required=True,
+        metavar="DIR",
         help="new folder to record into (strftime fields such as %%Y%%m%%d-%%H%%M%%S filled in)",
     )
-    parser.add_argument("--duration", type=float, help="stop after S seconds")
-    parser.add_argument("--max-gb", type=float, help="stop before the recording passes G GB")
+    parser.add_argument("--duration", type=float, metavar="S", help="stop after S seconds")
+    parser.add_argument(
+        "--max-gb", type=float, metavar="G", help="stop before the recording passes G GB"
+    )
     parser.set_defaults(handler=run_record)
 
 
