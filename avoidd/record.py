@@ -11,9 +11,10 @@ A recording is a folder that ``avoidd replay`` and a ``files`` source read witho
 
 Frames reach the :class:`Recorder` from the heads' capture threads (:meth:`Recorder.offer`,
 which never blocks). The event loop stamps each with the vehicle state at its capture time
-(the Vehicle lives on the loop), and one writer thread encodes and writes. What is waiting to
-be written is bounded in bytes; past that, frames are dropped from the recording and counted,
-so a slow disk never stalls the pipeline.
+(the Vehicle lives on the loop) once the samples after that time have arrived, and a writer
+thread per head encodes and writes. What is waiting to be written is bounded in bytes; past
+that, frames are dropped from the recording and counted, so a slow disk never stalls the
+pipeline.
 """
 
 from __future__ import annotations
@@ -69,6 +70,10 @@ COLUMNS = (
 )
 """The columns of a recording's ``frames.csv``, in order."""
 
+STAMP_DELAY_S = 0.1
+"""How long after a frame arrives its vehicle state is taken: the attitude is then interpolated
+between the samples before and after the capture instead of held from the last one before it
+(at 50 Hz, over a link with some latency)."""
 POSITION_MAX_AGE_NS = 500_000_000
 """A local position older (or newer) than this at the capture time is not recorded."""
 DEFAULT_QUEUE_BYTES = 64 * 2**20
@@ -255,7 +260,9 @@ class Recorder:
                 return
             self._waiting_bytes += size
         try:
-            self._loop.call_soon_threadsafe(self._stamp, head, frame, size)
+            self._loop.call_soon_threadsafe(
+                self._loop.call_later, STAMP_DELAY_S, self._stamp, head, frame, size
+            )
         except RuntimeError:  # the loop is closed: the run is over
             with self._lock:
                 self._waiting_bytes -= size
@@ -367,8 +374,8 @@ class Recorder:
 
     async def aclose(self) -> None:
         """Write what is waiting, then stop the writers (call on the loop, heads stopped)."""
-        await asyncio.sleep(0)  # frames stamped just before the heads stopped
         self._closed = True
+        await asyncio.sleep(STAMP_DELAY_S + 0.05)  # frames not yet stamped when the heads stopped
         for folder in self._heads.values():
             folder.queue.put(None)
         for thread in self._threads:

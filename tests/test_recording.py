@@ -390,3 +390,41 @@ def test_record_signs_for_a_signing_autopilot(tmp_path: Path) -> None:
         mock.send_signal(signal.SIGINT)
         mock.communicate(timeout=30)
     assert any(r["yaw_deg"] for r in assert_consistent(rec / "front"))
+
+
+def test_a_camera_without_its_own_pose_records_the_autopilot_attitude(
+    tmp_path: Path, autopilot: int
+) -> None:
+    pairs = tmp_path / "pairs"
+    (pairs / "left").mkdir(parents=True)
+    (pairs / "right").mkdir()
+    camera = SyntheticSource(SyntheticSourceConfig.model_validate(SOURCE), RIG, paced=False)
+    for i in range(3):
+        frame = camera.read()
+        cv2.imwrite(str(pairs / "left" / f"{i}.png"), frame.left)
+        cv2.imwrite(str(pairs / "right" / f"{i}.png"), frame.right)
+    source = {"kind": "files", "path": str(pairs), "loop": True, "fps": 10}
+    config = synthetic_config(tmp_path, f"udpout:127.0.0.1:{autopilot}", source=source)
+    rec = tmp_path / "rec"
+    process = avoidd("record", "--config", str(config), "--out", str(rec), "--duration", "3")
+    _, err = process.communicate(timeout=120)
+    assert process.returncode == 0, err
+    rows = [r for r in assert_consistent(rec / "front") if r["attitude_source"] == "mavlink"]
+    assert len(rows) >= 5
+    # The mock sways: roll 0.2 sin(1.3 t) rad, pitch 0.1 cos(0.7 t) rad.
+    rolls = [float(r["roll_deg"]) for r in rows]
+    pitches = [float(r["pitch_deg"]) for r in rows]
+    assert max(abs(v) for v in rolls) <= math.degrees(0.2) + 1e-6
+    assert max(abs(v) for v in pitches) <= math.degrees(0.1) + 1e-6
+    assert max(rolls) - min(rolls) > 1.0  # it moved during 3 s
+    for row in rows:
+        if row["height_source"] == "rangefinder":  # 1.5 m, corrected for the tilt
+            assert 1.45 <= float(row["height_m"]) <= 1.5
+    assert any(r["height_source"] == "rangefinder" for r in rows)
+    # Replayed, each frame is interpreted with its recorded attitude.
+    replayed = replay(rec / "avoidd.yaml", tmp_path / "r.jsonl")
+    by_time = {r["t_capture_ns"]: r["pose"] for r in replayed}
+    for row in rows:
+        pose = by_time[int(row["t_capture_ns"])]
+        assert pose["roll_deg"] == round(float(row["roll_deg"]), 2)
+        assert pose["source"] == "recording"
