@@ -410,6 +410,11 @@ def expand_folder(pattern: Path) -> Path:
     return Path(time.strftime(str(pattern)))
 
 
+def folder_in_use(folder: Path) -> bool:
+    """Whether ``folder`` exists as anything but an empty folder (a recording never mixes)."""
+    return folder.exists() and (not folder.is_dir() or any(folder.iterdir()))
+
+
 def prepare_folder(folder: Path, config_path: Path, config: AppConfig) -> None:
     """Create a recording folder with the configuration and calibrations replay needs.
 
@@ -421,7 +426,7 @@ def prepare_folder(folder: Path, config_path: Path, config: AppConfig) -> None:
     Raises:
         ConfigError: The folder exists and is not empty, or cannot be created.
     """
-    if folder.exists() and (not folder.is_dir() or any(folder.iterdir())):
+    if folder_in_use(folder):
         raise ConfigError(
             [f"{folder}: exists and is not an empty folder; give a new folder to record into"]
         )

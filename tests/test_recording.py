@@ -428,3 +428,25 @@ def test_a_camera_without_its_own_pose_records_the_autopilot_attitude(
         pose = by_time[int(row["t_capture_ns"])]
         assert pose["roll_deg"] == round(float(row["roll_deg"]), 2)
         assert pose["source"] == "recording"
+
+
+def test_run_record_into_a_folder_in_use_takes_the_next_free_name(
+    tmp_path: Path, autopilot: int
+) -> None:
+    config = synthetic_config(tmp_path, f"udpout:127.0.0.1:{autopilot}", source=SOURCE)
+    used = tmp_path / "flight"
+    used.mkdir()
+    (used / "earlier.txt").write_text("an earlier flight")
+    process = avoidd("run", "--config", str(config), "--record", str(used))
+    folder = tmp_path / "flight-2"
+    deadline = time.monotonic() + 60
+    while time.monotonic() < deadline:
+        if (folder / "front" / "frames.csv").is_file() and len(rows_of(folder / "front")) >= 2:
+            break
+        time.sleep(0.1)
+    process.send_signal(signal.SIGTERM)
+    _, err = process.communicate(timeout=60)
+    assert process.returncode == 0, err
+    assert f"--record {used}: in use; recording into {folder} instead" in err
+    assert len(assert_consistent(folder / "front")) >= 2
+    assert sorted(p.name for p in used.iterdir()) == ["earlier.txt"]
