@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import json
 import logging
+import math
 import statistics
 import time
 from dataclasses import dataclass, field
@@ -17,9 +18,10 @@ from avoidd.mavlink.messages import sectors_to_cm
 from avoidd.perception.sectors import bin_of_bearing
 from avoidd.perception.temporal import SectorFilter
 from avoidd.pipeline import STAGES, HeadPipeline
+from avoidd.progress import Progress
 from avoidd.sources import open_source
 from avoidd.sources.truth import nearest_obstacle
-from avoidd.types import FloatArray, Nearest
+from avoidd.types import FloatArray, Nearest, VehicleSample
 from avoidd.vision.calibration import Calibration
 from avoidd.vision.depth import depth_histogram
 
@@ -71,6 +73,44 @@ def _nearest_json(nearest: Nearest | None) -> dict[str, float] | None:
     }
 
 
+def _vehicle_json(vehicle: VehicleSample | None) -> dict[str, float | None] | None:
+    """A recorded heading and local position (None for unknown values)."""
+    if vehicle is None:
+        return None
+    return {
+        name: round(value, 4) if math.isfinite(value) else None
+        for name, value in vehicle._asdict().items()
+    }
+
+
+class _RealTime:
+    """Sleeps so that frames go through at the pace of their capture times."""
+
+    def __init__(self) -> None:
+        self._first_ns: int | None = None
+        self._started = 0.0
+
+    def wait(self, t_capture_ns: int) -> None:
+        if self._first_ns is None or t_capture_ns < self._first_ns:
+            self._first_ns, self._started = t_capture_ns, time.monotonic()
+            return
+        due = self._started + (t_capture_ns - self._first_ns) / 1e9
+        delay = due - time.monotonic()
+        if delay > 0:
+            time.sleep(delay)
+
+
+def _frame_count(source: object, max_frames: int | None) -> int | None:
+    """How many frames a replay will take, when known (for the progress bar)."""
+    try:
+        total: int | None = len(source)  # type: ignore[arg-type]
+    except TypeError:
+        total = None
+    if max_frames is not None:
+        total = max_frames if total is None else min(total, max_frames)
+    return total
+
+
 def replay(
     config: AppConfig,
     calibration: Calibration,
@@ -78,15 +118,16 @@ def replay(
     out: IO[str],
     input_path: Path | None = None,
     max_frames: int | None = None,
+    realtime: bool = False,
 ) -> ReplaySummary:
-    """Process every frame of a head's source as fast as possible and write JSON lines.
+    """Process every frame of a head's source and write JSON lines.
 
     Each line holds ``seq``, ``t_capture_ns``, ``nearest`` (``{"distance_m", "bearing_deg"}`` of
     the frame's own scan, or null), ``sectors_cm`` (the 72 values as they would be sent, after
     the temporal filter), ``raw_sectors_cm`` (before it), ``obstacles`` (see
     :meth:`avoidd.perception.obstacles.Obstacle.to_json`), ``pose`` (attitude and height used),
-    ``timing_ms`` per stage and, for the synthetic source, ``truth``
-    (``{"nearest_m", "nearest_bearing_deg"}``).
+    ``timing_ms`` per stage, ``vehicle`` (a recording's heading and local position, or null)
+    and, for the synthetic source, ``truth`` (``{"nearest_m", "nearest_bearing_deg"}``).
 
     Args:
         config: The configuration.
@@ -95,6 +136,8 @@ def replay(
         out: Where the JSON lines go.
         input_path: A folder or side-by-side video to read instead of the configured source.
         max_frames: Stop after this many frames.
+        realtime: Pace frames by their capture times (a recording plays at its recorded
+            speed) instead of going as fast as possible.
 
     A recorded source is read once, even when its config says ``loop`` (the daemon's
     playback setting): a replay ends.
@@ -115,14 +158,19 @@ def replay(
     min_cm, max_cm = od.range_cm(pipeline.min_range_m)
     summary = ReplaySummary(source=source.description)
     totals: dict[str, list[float]] = {stage: [] for stage in (*STAGES, "encode")}
+    pace = _RealTime() if realtime else None
+    progress = Progress(_frame_count(source, max_frames))
     try:
         while max_frames is None or summary.frames < max_frames:
             try:
                 frame = source.read()
+                if pace is not None:
+                    pace.wait(frame.t_capture_ns)
                 result = pipeline.process(frame, with_obstacles=True)
             except BrokenFrame as exc:
                 summary.dropped += 1
                 logger.warning("%s", exc)
+                progress.step("dropped")
                 continue
             except SourceExhausted:
                 break
@@ -152,6 +200,7 @@ def replay(
                     "source": pose.source,
                     "height_source": pose.height_source,
                 },
+                "vehicle": _vehicle_json(frame.vehicle),
                 "valid_fraction": round(result.valid_fraction, 4),
                 "timing_ms": {k: round(v, 3) for k, v in timing.items()},
                 "preprocess_steps_ms": {k: round(v, 3) for k, v in result.steps_ms.items()},
@@ -174,7 +223,9 @@ def replay(
             for stage, value in timing.items():
                 totals[stage].append(value)
             summary.frames += 1
+            progress.step(f"frame {result.seq}")
     finally:
+        progress.close()
         source.close()
     summary.stage_ms = {k: statistics.fmean(v) for k, v in totals.items() if v}
     return summary

@@ -58,6 +58,22 @@ class FramePose(NamedTuple):
     height_source: str = "config"
 
 
+class VehicleSample(NamedTuple):
+    """Vehicle heading and local position at a frame's capture, as a recording carries them.
+
+    Attributes:
+        yaw_deg: Heading, degrees clockwise from north, in (-180, 180]; NaN when unknown.
+        north_m: Local position (``LOCAL_POSITION_NED``) north of the origin; NaN when unknown.
+        east_m: East of the origin; NaN when unknown.
+        down_m: Below the origin (negative above it); NaN when unknown.
+    """
+
+    yaw_deg: float = math.nan
+    north_m: float = math.nan
+    east_m: float = math.nan
+    down_m: float = math.nan
+
+
 class StereoFrame(NamedTuple):
     """One stereo pair as a source delivers it.
 
@@ -70,6 +86,7 @@ class StereoFrame(NamedTuple):
         pose: Attitude and height recorded with the frame (recordings, synthetic scenes).
         restarts: How many times the source started over before this frame (a looping
             recording or moving scene): a change means the scene jumped, not moved.
+        vehicle: Heading and local position recorded with the frame (recordings only).
     """
 
     seq: int
@@ -79,6 +96,7 @@ class StereoFrame(NamedTuple):
     truth: GroundTruth | None = None
     pose: FramePose | None = None
     restarts: int = 0
+    vehicle: VehicleSample | None = None
 
 
 @dataclass(frozen=True)

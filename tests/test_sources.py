@@ -331,3 +331,34 @@ def test_frames_csv_attitude_errors_name_the_row_and_the_fix(
 ) -> None:
     with pytest.raises(SourceError, match=message):
         FolderSource(make_folder(tmp_path, 1, rows), None, paced=False, loop=False)
+
+
+def test_frames_csv_heading_and_position_columns_are_optional_and_may_be_empty(
+    tmp_path: Path,
+) -> None:
+    rows = [
+        "t_capture_ns,left,right,roll_deg,pitch_deg,height_m,yaw_deg,north_m,east_m,down_m,"
+        "attitude_source,height_source,seq",
+        "1000,0000.png,0000.png,1.0,2.0,1.5,190.0,3.5,-2.25,-1.5,mavlink,rangefinder,7",
+        "2000,0001.png,0001.png,1.0,2.0,1.5,,,,,config,config,8",
+    ]
+    source = FolderSource(make_folder(tmp_path, 2, rows), None, paced=False, loop=False)
+    first, second = source.read(), source.read()
+    assert first.pose == FramePose(1.0, 2.0, 1.5, "recording", "recording")
+    assert first.vehicle is not None
+    assert first.vehicle == pytest.approx((-170.0, 3.5, -2.25, -1.5))  # yaw wrapped
+    assert second.vehicle is not None and all(np.isnan(v) for v in second.vehicle)
+    # An older file without them still loads, without vehicle data.
+    rows = ["t_capture_ns,roll_deg,pitch_deg", "1000,1.0,2.0"]
+    frame = FolderSource(make_folder(tmp_path / "b", 1, rows), None, False, False).read()
+    assert frame.vehicle is None
+
+
+@pytest.mark.parametrize(
+    ("cell", "message"),
+    [("abc", r"frames.csv:2: north_m is not a number"), ("inf", "north_m is not finite")],
+)
+def test_frames_csv_position_errors_name_the_row(tmp_path: Path, cell: str, message: str) -> None:
+    rows = ["t_capture_ns,north_m", f"1,{cell}"]
+    with pytest.raises(SourceError, match=message):
+        FolderSource(make_folder(tmp_path, 1, rows), None, paced=False, loop=False)

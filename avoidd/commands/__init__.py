@@ -22,6 +22,10 @@ if TYPE_CHECKING:
 
 COMMANDS: dict[str, tuple[str, str]] = {
     "run": ("run", "run the daemon"),
+    "record": (
+        "record",
+        "record every head's frames and the autopilot's state for replay (no avoidance)",
+    ),
     "check-config": ("check_config", "validate a configuration, touch nothing"),
     "replay": ("replay", "process every frame offline into JSON lines"),
     "eval": ("evaluate", "score matchers on stereo data with ground truth (Middlebury, KITTI)"),

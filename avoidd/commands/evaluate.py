@@ -10,7 +10,8 @@ from avoidd.commands import EXIT_OK
 from avoidd.evaluation.edges import edge_suite, format_edges, run_edge_case
 from avoidd.evaluation.near import format_near, near_suite, run_near_case
 from avoidd.evaluation.run import evaluate, format_details, format_runs
-from avoidd.evaluation.scenes import SuiteSummary, contact_suite, draws, run_suite, suite
+from avoidd.evaluation.scenes import SuiteSummary, contact_suite, draws, run_case, suite
+from avoidd.progress import Progress
 
 
 def configure(name: str, parser: argparse.ArgumentParser) -> None:
@@ -72,16 +73,32 @@ def run_eval_perception(args: argparse.Namespace) -> int:
     """Score perception on the rendered suites and print the summaries."""
     seeds = args.seed or [2024]
     scenes = suite(args.scenes, seeds[0]) if len(seeds) == 1 else draws(seeds, args.scenes)
-    summary = run_suite(scenes + contact_suite(args.contact_scenes))
+    cases = scenes + contact_suite(args.contact_scenes)
+    near_cases = near_suite(args.near_scenes) if args.near_scenes else []
+    edge_cases = edge_suite(args.edge_scenes) if args.edge_scenes else []
+    with Progress(len(cases) + len(near_cases) + len(edge_cases)) as progress:
+        results = []
+        for case in cases:
+            results.append(run_case(case))
+            progress.step(case.name)
+        near = []
+        for case in near_cases:
+            near.append(run_near_case(case))
+            progress.step(f"near {case.name}")
+        edges = []
+        for case in edge_cases:
+            edges.append(run_edge_case(case))
+            progress.step(f"edge {case.name}")
+    summary = SuiteSummary(results)
     print(summary.format())
     if len(seeds) > 1:
         for seed in seeds:
             draw = SuiteSummary([r for r in summary.results if r.name.startswith(f"{seed}/")])
             print(f"draw {seed}: {draw.headline()}")
-    if args.near_scenes:
+    if near:
         print()
-        print(format_near([run_near_case(c) for c in near_suite(args.near_scenes)]))
-    if args.edge_scenes:
+        print(format_near(near))
+    if edges:
         print()
-        print(format_edges([run_edge_case(c) for c in edge_suite(args.edge_scenes)]))
+        print(format_edges(edges))
     return EXIT_OK

@@ -20,6 +20,11 @@ def configure(name: str, parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--max-frames", type=int, help="stop after N frames")
     parser.add_argument("--head", help="head to replay (default: the first)")
     parser.add_argument("--out", type=Path, required=True, help="output .jsonl file")
+    parser.add_argument(
+        "--realtime",
+        action="store_true",
+        help="pace frames by their capture times (a recording plays at its recorded speed)",
+    )
     parser.set_defaults(handler=run_replay)
 
 
@@ -38,7 +43,15 @@ def run_replay(args: argparse.Namespace) -> int:
         raise ConfigError([f"--input {args.input}: not found; give a folder or a video file"])
     args.out.parent.mkdir(parents=True, exist_ok=True)
     with args.out.open("w", encoding="utf-8") as out:
-        summary = replay(config, calibrations[head.name], head, out, args.input, args.max_frames)
+        summary = replay(
+            config,
+            calibrations[head.name],
+            head,
+            out,
+            args.input,
+            args.max_frames,
+            realtime=args.realtime,
+        )
     print(format_summary(summary))
     print(f"wrote {summary.frames} lines to {args.out}")
     if summary.frames == 0:

@@ -9,7 +9,7 @@ import signal
 import threading
 import time
 from collections import Counter
-from collections.abc import Coroutine
+from collections.abc import Callable, Coroutine
 from typing import TYPE_CHECKING, Any
 
 from avoidd import sources
@@ -65,6 +65,8 @@ class Daemon:
             :func:`avoidd.sources.open_source` (the default).
         link: The MAVLink link, not yet opened; by default :func:`build_link` of the config.
             If ``mavlink.signing`` is configured, the daemon enables signing on its codec.
+        on_frame: Given every captured frame with its head's name, in the head's capture
+            thread (``avoidd run --record``: :meth:`avoidd.record.Recorder.offer`).
 
     Attributes:
         config: The configuration.
@@ -81,8 +83,10 @@ class Daemon:
         *,
         open_source: OpenSource | None = None,
         link: MavLink | None = None,
+        on_frame: Callable[[str, StereoFrame], None] | None = None,
     ) -> None:
         self.config = config
+        self._on_frame = on_frame
         self._calibrations = calibrations
         self._open_source: OpenSource = (
             open_source if open_source is not None else sources.open_source
@@ -175,6 +179,7 @@ class Daemon:
                 self.config.perception,
                 self.pose_for,
                 self._open_source,
+                on_frame=self._on_frame,
             )
             for h in self.config.heads
         ]

@@ -72,6 +72,8 @@ class Head:
         perception: Ground model, band and temporal filter parameters.
         pose_for: Attitude and height to interpret a frame with.
         open_source: Opens the head's source (called from the capture thread).
+        on_frame: Also given every captured frame with the head's name, in the capture
+            thread (a recorder); it must return at once and never raise.
     """
 
     def __init__(
@@ -85,6 +87,7 @@ class Head:
         perception: PerceptionConfig,
         pose_for: Callable[[StereoFrame], FramePose],
         open_source: OpenSource,
+        on_frame: Callable[[str, StereoFrame], None] | None = None,
     ) -> None:
         self.config = config
         self.name = config.name
@@ -93,6 +96,7 @@ class Head:
         self._restarts_seen = 0
         self._pose_for = pose_for
         self._open_source = open_source
+        self._on_frame = on_frame
         self.slot: LatestSlot[StereoFrame] = LatestSlot(loop)
         self.latest: HeadResult | None = None
         self.latest_scan: SectorScan | None = None
@@ -209,6 +213,8 @@ class Head:
             self.arrival_age_ns = arrived_ns - frame.t_capture_ns
             self.last_frame_ns = arrived_ns
             self.slot.put(frame)
+            if self._on_frame is not None:
+                self._on_frame(self.name, frame)
         self._capture_log.clear()  # the repeats not yet summarised
         if source is not None:
             with contextlib.suppress(Exception):

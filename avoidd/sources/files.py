@@ -15,7 +15,7 @@ import numpy as np
 
 from avoidd.errors import BrokenFrame, SourceError, SourceExhausted
 from avoidd.sources.base import Pacer
-from avoidd.types import FramePose, Image, StereoFrame
+from avoidd.types import FramePose, Image, StereoFrame, VehicleSample, wrap_deg
 
 logger = logging.getLogger(__name__)
 
@@ -27,6 +27,9 @@ POSE_COLUMNS = ("roll_deg", "pitch_deg")
 """Optional ``frames.csv`` columns with the vehicle attitude at capture (both or neither)."""
 HEIGHT_COLUMN = "height_m"
 """Optional ``frames.csv`` column with the height above ground at capture."""
+VEHICLE_COLUMNS = ("yaw_deg", "north_m", "east_m", "down_m")
+"""Optional ``frames.csv`` columns with the heading and local position at capture (any of them;
+an empty cell is unknown)."""
 MAX_T_CAPTURE_NS = 2**63 - 1
 """Capture times are monotonic nanoseconds: 0 to the largest signed 64-bit number."""
 
@@ -37,6 +40,7 @@ class _Pair:
     right: Path
     t_capture_ns: int | None
     pose: FramePose | None = None
+    vehicle: VehicleSample | None = None
 
 
 def _images(folder: Path) -> list[Path]:
@@ -65,6 +69,27 @@ def _pose(row: dict[str, str], has_height: bool, where: str) -> FramePose:
     )
 
 
+def _vehicle(row: dict[str, str], columns: list[str], where: str) -> VehicleSample:
+    """The recorded heading and local position of one row; empty or absent cells are NaN."""
+    values = {}
+    for column in columns:
+        text = (row[column] or "").strip()
+        if not text:
+            continue
+        try:
+            value = float(text)
+        except ValueError as exc:
+            raise SourceError(
+                f"{where}: {column} is not a number (leave it empty if unknown)"
+            ) from exc
+        if not math.isfinite(value):
+            raise SourceError(f"{where}: {column} is not finite (leave it empty if unknown)")
+        values[column] = value
+    if "yaw_deg" in values:
+        values["yaw_deg"] = wrap_deg(values["yaw_deg"])
+    return VehicleSample(**values)
+
+
 def _read_utf8(path: Path) -> str:
     """A text file's content; bytes that are not UTF-8 are an error naming the line."""
     try:
@@ -84,7 +109,9 @@ def _read_index(folder: Path, path: Path) -> list[_Pair]:
     """Pairs listed in ``frames.csv``.
 
     Columns: ``t_capture_ns``; optionally ``left`` and ``right`` (file names), ``roll_deg``
-    and ``pitch_deg`` (vehicle attitude at capture) and ``height_m`` (height above ground).
+    and ``pitch_deg`` (vehicle attitude at capture), ``height_m`` (height above ground) and
+    ``yaw_deg``, ``north_m``, ``east_m``, ``down_m`` (heading and local position, cells may be
+    empty). Other columns (``seq``, ``attitude_source``, ``height_source``) are ignored.
     """
     left_dir, right_dir = folder / "left", folder / "right"
     reader = csv.DictReader(io.StringIO(_read_utf8(path), newline=""))
@@ -99,6 +126,7 @@ def _read_index(folder: Path, path: Path) -> list[_Pair]:
     has_height = HEIGHT_COLUMN in fields
     if has_height and not has_pose:
         raise SourceError(f"{path}: height_m needs roll_deg and pitch_deg columns too")
+    vehicle_columns = [c for c in VEHICLE_COLUMNS if c in fields]
     left_images = [] if named else _images(left_dir)
     right_images = [] if named else _images(right_dir)
     if not named and len(rows) != len(left_images):
@@ -119,10 +147,12 @@ def _read_index(folder: Path, path: Path) -> list[_Pair]:
                 f"a capture time is monotonic nanoseconds from 0 to {MAX_T_CAPTURE_NS}"
             )
         pose = _pose(row, has_height, f"{path}:{line}") if has_pose else None
+        vehicle = _vehicle(row, vehicle_columns, f"{path}:{line}") if vehicle_columns else None
         if named:
-            pairs.append(_Pair(left_dir / row["left"], right_dir / row["right"], t_ns, pose))
+            left, right = left_dir / row["left"], right_dir / row["right"]
         else:
-            pairs.append(_Pair(left_images[number], right_images[number], t_ns, pose))
+            left, right = left_images[number], right_images[number]
+        pairs.append(_Pair(left, right, t_ns, pose, vehicle))
     return pairs
 
 
@@ -225,6 +255,7 @@ class FolderSource:
             _as_uint8(right, pair.right),
             pose=pair.pose,
             restarts=self._restarts,
+            vehicle=pair.vehicle,
         )
 
     def close(self) -> None:
