@@ -23,7 +23,7 @@ LAYERS: list[tuple[str, tuple[str, ...]]] = [
             "avoidd.bench",
         ),
     ),
-    ("services", ("avoidd.pipeline", "avoidd.planner", "avoidd.service", "avoidd.loading")),
+    ("services", ("avoidd.pipeline", "avoidd.planner", "avoidd.loading")),
     (
         "domain",
         (
