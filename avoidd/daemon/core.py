@@ -95,9 +95,9 @@ class Daemon:
         self._stopping = asyncio.Event()
         self.heads: list[Head] = []
         self.outputs: Outputs | None = None
-        self.avoidance: AvoidanceLoop | None = None
-        """The setpoint loop, when ``avoidance.enabled`` (built when :meth:`run` starts)."""
         """The obstacle message senders, built when :meth:`run` starts."""
+        self.avoidance: AvoidanceLoop | None = None
+        """The setpoint loop, built when :meth:`run` starts (silent unless enabled)."""
         mavlink = config.mavlink
         self.link = link if link is not None else build_link(mavlink)
         self.codec = self.link.codec
