@@ -94,6 +94,10 @@ def test_calibrate_command_recovers_the_virtual_rig(
     blank = np.full((480, 640), 110, np.uint8)
     cv2.imwrite(str(folder / "left" / "901-empty.png"), blank)
     cv2.imwrite(str(folder / "right" / "901-empty.png"), blank)
+    # And a pair whose left image is cut off mid-file (a copy interrupted).
+    whole = (folder / "left" / "004.png").read_bytes()
+    (folder / "left" / "902-cut.png").write_bytes(whole[: len(whole) // 3])
+    shutil.copy(folder / "right" / "004.png", folder / "right" / "902-cut.png")
     out = tmp_path / "calib.yaml"
 
     args = ["calibrate", str(folder), "--squares", "10x7", "--square-mm", "50", "--out", str(out)]
@@ -102,6 +106,7 @@ def test_calibrate_command_recovers_the_virtual_rig(
     printed = capsys.readouterr().out
     assert "900-moved.png" in printed and "board moved" in printed
     assert "901-empty.png" in printed and "board not found" in printed
+    assert "902-cut.png" in printed and "cannot read the image" in printed
     assert "RMS reprojection error" in printed and "rectification check" in printed
     truth = default_rig()
     calibration = load_calibration(out)  # the file is read back like any other
@@ -116,7 +121,7 @@ def test_calibrate_command_recovers_the_virtual_rig(
     assert calibration.rig.baseline_m == pytest.approx(truth.baseline_m, rel=0.01)
     dy = _true_corner_dy(model, CHESS, 6)
     assert dy.max() < 0.3, f"rectified |dy| max {dy.max():.3f} px"
-    assert "14 of 16 pairs used" in text
+    assert "14 of 17 pairs used" in text
 
 
 def _observe_rendered(board: Board, count: int, seed: int) -> list[PairObservation | PairReport]:

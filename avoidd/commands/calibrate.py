@@ -171,7 +171,12 @@ def run_calibrate(folder: Path, board: Board, out: Path) -> StereoCalibration:
     observations: list[PairObservation | PairReport] = []
     size: tuple[int, int] | None = None
     for pair in pairs:
-        left, right = _grey(pair.left), _grey(pair.right)
+        try:
+            left, right = _grey(pair.left), _grey(pair.right)
+        except SourceError as exc:  # one unreadable pair is dropped, like a pair without a board
+            observations.append(PairReport(pair.left.name, used=False, reason=str(exc)))
+            progress.step(pair.left.name)
+            continue
         shape = (left.shape[1], left.shape[0])
         if right.shape != left.shape or (size is not None and shape != size):
             raise SourceError(f"{pair.left}: every image must have the same size as the first")
