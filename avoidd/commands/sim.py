@@ -20,6 +20,12 @@ def configure(name: str, parser: argparse.ArgumentParser) -> None:
     run.add_argument("scenario", type=Path, help="scenario file (sitl/scenarios/*.yaml)")
     run.add_argument("--seed", type=int, help="replace the generator's (or world's) seed")
     run.add_argument("--out", type=Path, help="folder for trace.jsonl, summary.json, plot.png")
+    run.add_argument(
+        "--realtime",
+        action="store_true",
+        help="run avoidd's whole daemon in real time against the simulated vehicle as an "
+        "autopilot on a loopback MAVLink link (not deterministic)",
+    )
     run.set_defaults(handler=run_one)
     batch = actions.add_parser("batch", help="run many scenarios and seeds; print a table")
     batch.add_argument("scenarios", type=Path, nargs="+", help="scenario files")
@@ -60,6 +66,9 @@ def run_one(args: argparse.Namespace) -> int:
     """Run one scenario; exit 0 when it passes its criteria, 1 when not."""
     from avoidd.sim.scenario import run_file, write_outputs
 
+    if args.realtime:
+        return _run_realtime(args)
+
     run, summary = run_file(args.scenario, args.seed)
     print(format_table([summary.as_json() | {"wall_time_s": round(summary.wall_time_s, 1)}]))
     if args.out is not None:
@@ -70,11 +79,46 @@ def run_one(args: argparse.Namespace) -> int:
     return EXIT_OK if summary.passed else EXIT_FAILURE
 
 
+def _free_udp_port() -> int:
+    import socket
+
+    with socket.socket(socket.AF_INET, socket.SOCK_DGRAM) as probe:
+        probe.bind(("127.0.0.1", 0))
+        return int(probe.getsockname()[1])
+
+
+def _report(summary: Any, out_json: Path | None) -> int:
+    """Print an external or real-time run's summary (and write it with its samples)."""
+    import dataclasses
+
+    report = summary.as_json()
+    print(json.dumps(report, indent=2))
+    if out_json is not None:
+        out_json.parent.mkdir(parents=True, exist_ok=True)
+        samples = [dataclasses.asdict(sample) for sample in summary.samples]
+        out_json.write_text(json.dumps(report | {"trace": samples}, indent=2) + "\n")
+        print(f"wrote {out_json}")
+    for failure in summary.failures:
+        print(f"FAILED: {failure}")
+    return EXIT_OK if summary.passed else EXIT_FAILURE
+
+
+def _run_realtime(args: argparse.Namespace) -> int:
+    import asyncio
+
+    from avoidd.config.sim import load_scenario
+    from avoidd.sim.realtime import RealtimeRun
+
+    if args.seed is not None:
+        raise ConfigError(["--seed: a real-time run takes the scenario's own seed"])
+    run = RealtimeRun(load_scenario(args.scenario))
+    summary = asyncio.run(run.run(_free_udp_port()))
+    return _report(summary, None if args.out is None else args.out / "summary.json")
+
+
 def run_ardupilot(args: argparse.Namespace) -> int:
     """Fly one scenario against ArduCopter SITL; exit 0 when it passes its criteria."""
     import asyncio
-    import dataclasses
-    import socket
 
     from avoidd.config.sim import load_scenario
     from avoidd.sim.external import ExternalRun
@@ -89,18 +133,8 @@ def run_ardupilot(args: argparse.Namespace) -> int:
         push_speed_m_s=args.push or 2.0,
         avoid_margin_m=args.avoid_margin,
     )
-    with socket.socket(socket.AF_INET, socket.SOCK_DGRAM) as probe:
-        probe.bind(("127.0.0.1", 0))
-        port = int(probe.getsockname()[1])
-    summary = asyncio.run(run.run(port))
-    report = summary.as_json()
-    print(json.dumps(report, indent=2))
-    if args.json is not None:
-        samples = [dataclasses.asdict(sample) for sample in summary.samples]
-        args.json.write_text(json.dumps(report | {"trace": samples}, indent=2) + "\n")
-    for failure in summary.failures:
-        print(f"FAILED: {failure}")
-    return EXIT_OK if summary.passed else EXIT_FAILURE
+    summary = asyncio.run(run.run(_free_udp_port()))
+    return _report(summary, args.json)
 
 
 def _one(path: Path, seed: int, max_speed_m_s: float | None) -> dict[str, Any]:

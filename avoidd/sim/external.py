@@ -144,10 +144,24 @@ def scenario_world(scenario: ScenarioConfig) -> tuple[World, tuple[float, float,
     return World.from_config(config), (goal.north_m, goal.east_m, goal.altitude_m)
 
 
-def daemon_config(port: int, scenario: ScenarioConfig, planner: bool) -> AppConfig:
-    """The daemon's configuration for the flight: one simulated head, ``udpin`` on ``port``."""
+def daemon_config(
+    port: int,
+    scenario: ScenarioConfig,
+    planner: bool,
+    goal: tuple[float, float, float] | None = None,
+) -> AppConfig:
+    """The daemon's configuration for the flight: one simulated head, ``udpin`` on ``port``.
+
+    Args:
+        port: avoidd's UDP port on 127.0.0.1.
+        scenario: The scenario (its camera rate and planner settings).
+        planner: Whether avoidd flies (``avoidance.enabled``).
+        goal: A goal (north, east, altitude in the autopilot's local frame) from the start.
+    """
     avoidance = scenario.avoidance.model_dump(exclude={"goal", "params_file"})
     avoidance["enabled"] = planner
+    if goal is not None:
+        avoidance["goal"] = {"north_m": goal[0], "east_m": goal[1], "altitude_m": goal[2]}
     return AppConfig.model_validate(
         {
             "version": 1,
