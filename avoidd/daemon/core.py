@@ -288,7 +288,7 @@ class Daemon:
                 continue
             name = head.name
             if change:
-                why = health.stale_reason(
+                why = head.fault or health.stale_reason(
                     now_ns, head.last_frame_ns, head.arrival_age_ns, self._max_age_ns
                 )
                 logger.error("head '%s': data stale (%s); its sectors are unknown", name, why)

@@ -109,6 +109,12 @@ class Head:
         self._compute_log = RepeatLimiter(logger)
         self._broken_in_row = 0
         self._lost_to_broken = False
+        self._compute_failing = False
+
+    @property
+    def fault(self) -> str | None:
+        """Why the head's data stops, when the head knows ("compute failing"), else None."""
+        return "compute failing" if self._compute_failing else None
 
     @property
     def t_capture_ns(self) -> int | None:
@@ -177,6 +183,7 @@ class Head:
                 backoff_s = low_s
             try:
                 frame = source.read()
+                self.pipeline.check_frame(frame)  # wrong size or pixel format: dropped here
             except BrokenFrame as exc:
                 self.stats.broken += 1
                 self._frame_broken(exc)
@@ -252,10 +259,16 @@ class Head:
                 self.stats.broken += 1
                 self._compute_log.report(logging.WARNING, "broken", f"head '{self.name}': {exc}")
                 continue
-            except Exception:
+            except Exception as exc:
+                # A bug in a stage: one line per run of failures, not a traceback per frame
+                # (the traceback is there at DEBUG level).
                 self.stats.broken += 1
-                logger.exception("head '%s': frame %d failed", self.name, frame.seq)
+                self._compute_failing = True
+                text = f"head '{self.name}': frame {frame.seq} failed ({exc!r}); dropped"
+                if self._compute_log.report(logging.ERROR, "failed", text):
+                    logger.debug("head '%s': the failure", self.name, exc_info=True)
                 continue
+            self._compute_failing = False
             self._compute_log.clear()
             went_back = self.latest is not None and result.t_capture_ns <= self.latest.t_capture_ns
             if went_back or frame.restarts != self._restarts_seen:
