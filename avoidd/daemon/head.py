@@ -14,6 +14,7 @@ from pathlib import Path
 from typing import Protocol
 
 from avoidd.config import HeadConfig, PerceptionConfig, SourceConfig
+from avoidd.daemon.framecheck import FrameCheck
 from avoidd.errors import BrokenFrame, SourceError, SourceExhausted
 from avoidd.logrepeat import RepeatLimiter
 from avoidd.mavlink import codec as mav
@@ -109,11 +110,14 @@ class Head:
         self._compute_log = RepeatLimiter(logger)
         self._broken_in_row = 0
         self._lost_to_broken = False
+        self.frame_check = FrameCheck(self.name)
         self._compute_failing = False
 
     @property
     def fault(self) -> str | None:
-        """Why the head's data stops, when the head knows ("compute failing"), else None."""
+        """Why the head's data stops, when the head knows ("camera frozen" ...), else None."""
+        if self.frame_check.fault is not None:
+            return self.frame_check.fault
         return "compute failing" if self._compute_failing else None
 
     @property
@@ -209,6 +213,8 @@ class Head:
                 backoff_s = min(backoff_s * 2, high_s)
                 continue
             self._frame_good()
+            if not self.frame_check.usable(frame):
+                continue  # frozen or blind: no news (counted and logged by the check)
             self.stats.captured += 1
             arrived_ns = time.monotonic_ns()
             self.arrival_age_ns = arrived_ns - frame.t_capture_ns
