@@ -298,6 +298,8 @@ class Daemon:
             else:
                 logger.warning("head '%s': data fresh again", name)
                 self.announce(mav.MAV_SEVERITY_NOTICE, f"avoidd: {name} recovered", f"fresh {name}")
+            # Say the new state now rather than at the next periodic HEARTBEAT (up to 1 s on).
+            self.link.send(self.codec.heartbeat(health.mav_state(self.reported_stale())))
 
     async def _signing_loop(self) -> None:
         while True:
