@@ -228,7 +228,7 @@ class Head:
     def _frame_broken(self, exc: BrokenFrame) -> None:
         """Log an unreadable frame once per run of them; a long run means the camera is lost."""
         self._broken_in_row += 1
-        self._capture_log.report(logging.WARNING, "broken frames", f"head '{self.name}': {exc}")
+        self._capture_log.report(logging.WARNING, "broken frames", self._about(exc))
         if self._broken_in_row == LOST_AFTER_BROKEN and not self._lost_to_broken:
             self._lost_to_broken = True
             logger.error(
@@ -239,6 +239,11 @@ class Head:
             self._announce(
                 mav.MAV_SEVERITY_CRITICAL, f"avoidd: {self.name} camera lost", f"camera {self.name}"
             )
+
+    def _about(self, exc: Exception) -> str:
+        """An error's text with the head's name in front, unless it starts with it already."""
+        text, prefix = str(exc), f"head '{self.name}': "
+        return text if text.startswith(prefix) else prefix + text
 
     def _frame_good(self) -> None:
         """A usable frame arrived: end a run of unreadable ones."""
@@ -263,7 +268,7 @@ class Head:
                 result = await asyncio.to_thread(self.pipeline.process, frame, pose)
             except BrokenFrame as exc:
                 self.stats.broken += 1
-                self._compute_log.report(logging.WARNING, "broken", f"head '{self.name}': {exc}")
+                self._compute_log.report(logging.WARNING, "broken", self._about(exc))
                 continue
             except Exception as exc:
                 # A bug in a stage: one line per run of failures, not a traceback per frame
