@@ -415,7 +415,8 @@ class Vehicle:
             )
             self._announce(mav.MAV_SEVERITY_WARNING, "avoidd: link down", "link")
         if self.link_up:
-            self._check_silent_streams(now_ns)
+            if self._link.connected:  # a lost port or connection is said once, by the link
+                self._check_silent_streams(now_ns)
             self._request_streams(now_ns / 1e9)
             self._request_origin(now_ns)
 
