@@ -64,14 +64,17 @@ class FrameCheck:
 
     Args:
         head: The head's name, for messages.
+        repeats: Whether a repeated image is a fault (not for the synthetic camera, whose
+            still scene without noise repeats on purpose).
 
     Attributes:
         repeated: Frames dropped as a repeat of the one before.
         blind: Frames dropped as blind.
     """
 
-    def __init__(self, head: str) -> None:
+    def __init__(self, head: str, repeats: bool = True) -> None:
         self._head = head
+        self._check_repeats = repeats
         self._previous: tuple[Image, Image] | None = None
         self._repeats = 0
         self._blind_in_row = 0
@@ -116,9 +119,13 @@ class FrameCheck:
                 )
                 self.fault = None
             self._blind_in_row = 0
-        if previous is not None and all(
-            a.shape == b.shape and np.array_equal(a, b)
-            for a, b in zip(sample, previous, strict=True)
+        if (
+            self._check_repeats
+            and previous is not None
+            and all(
+                a.shape == b.shape and np.array_equal(a, b)
+                for a, b in zip(sample, previous, strict=True)
+            )
         ):
             self.repeated += 1
             self._repeats += 1

@@ -110,7 +110,7 @@ class Head:
         self._compute_log = RepeatLimiter(logger)
         self._broken_in_row = 0
         self._lost_to_broken = False
-        self.frame_check = FrameCheck(self.name)
+        self.frame_check = FrameCheck(self.name, repeats=config.source.kind != "synthetic")
         self._compute_failing = False
 
     @property
