@@ -24,6 +24,7 @@ camera: frozen (same image, new time)  ``test_camera_fault[frozen]``,
                                        ``test_frame_check_drops_repeats_and_says_frozen_once``
 camera: black / saturated              ``test_camera_fault[black|saturated]``; the texture gate
                                        alone: ``test_blind_views_give_no_clear_bin``
+camera: no texture (fog, blank wall)   ``test_a_view_without_texture_sends_nothing_to_ardupilot``
 camera: wrong size / pixel format      ``test_camera_fault[wrong-size|pixel-format]``
 camera: one side missing               ``test_camera_fault[one-side-missing]``
 camera: the two sides out of sync      ``test_camera_fault[out-of-sync]``
@@ -53,6 +54,7 @@ soak                                   *elsewhere*: test_soak.py
 from __future__ import annotations
 
 import asyncio
+import functools
 import itertools
 import logging
 import re
@@ -82,26 +84,24 @@ FPS = 15.0
 MAX_AGE_MS = 400
 CLEAR_CM = 2001
 """A measured, clear bin (max_distance_cm + 1)."""
+POLE_CM = 190
+"""The truth of the pole's bins (every other bin's truth is clear)."""
 REACT_S = 8.0
 """Generous bound on the daemon's answer to a fault (the target is 1 s on an idle machine)."""
 SCENE = Scene(1.5, 0.0, (Pole(2.0, 0.0, 0.2, 3.0),), 45.0, 11)
 """A pole 1.9 m straight ahead, a tree line at 45 m: most bins in view are clear."""
 
 
-def _views(count: int = 8) -> list[tuple[np.ndarray, np.ndarray]]:
-    """Rendered BGR pairs of the scene, each with its own sensor noise."""
+@functools.cache
+def views(count: int = 8) -> list[tuple[np.ndarray, np.ndarray]]:
+    """Rendered BGR pairs of the scene, each with its own sensor noise (rendered once)."""
     rendered = render_pair(SCENE, RIG)
     rng = np.random.default_rng(5)
-    return [
-        tuple(  # type: ignore[misc]
-            to_uint8(view, rng.normal(0.0, 1.5, view.shape).astype(np.float32))
-            for view in (rendered.left, rendered.right)
-        )
-        for _ in range(count)
-    ]
 
+    def noisy(view: np.ndarray) -> np.ndarray:
+        return to_uint8(view, rng.normal(0.0, 1.5, view.shape).astype(np.float32))
 
-VIEWS = _views()
+    return [(noisy(rendered.left), noisy(rendered.right)) for _ in range(count)]
 
 
 # --- the fake camera --------------------------------------------------------------------------
@@ -114,9 +114,9 @@ class CameraWorld:
     fault: str | None = None
     opens: int = 0
     _pairs: Iterator[tuple[np.ndarray, np.ndarray]] = field(
-        default_factory=lambda: itertools.cycle(VIEWS)
+        default_factory=lambda: itertools.cycle(views())
     )
-    _pair: tuple[np.ndarray, np.ndarray] = VIEWS[0]
+    _pair: tuple[np.ndarray, np.ndarray] = field(default_factory=lambda: views()[0])
     _t0_s: float = field(default_factory=time.monotonic)
 
     def device(self, name: str) -> FakeDevice:
@@ -134,6 +134,9 @@ class CameraWorld:
             return True, np.random.default_rng().integers(0, 4, image.shape, dtype=np.uint8)
         if fault == "saturated":
             return True, np.full(image.shape, 255, dtype=np.uint8)
+        if fault == "textureless":  # fog, a blank wall: mid grey and sensor noise
+            noise = np.random.default_rng().normal(128.0, 1.5, image.shape)
+            return True, noise.astype(np.uint8)
         if fault == "wrong-size":
             return True, image[::2, ::2].copy()
         if fault == "pixel-format":
@@ -246,8 +249,10 @@ def _known(message: Any) -> list[int]:
 def _check_nothing_vouched(heard: Heard, fault_ns: int, end_ns: int) -> None:
     """While the fault lasts nothing is sent as known that the daemon cannot vouch for.
 
-    Data captured during the fault must say nothing (every bin unknown); data captured before
-    it may still be sent, but never older than max_age_ms (plus the way to the autopilot).
+    Data captured during the fault says nothing new: every bin unknown, but for an obstacle
+    the temporal filter still holds (never clear, never farther than the pole, the nearest
+    truth); data captured before it may still be sent, but never older than max_age_ms (plus
+    the way to the autopilot).
     """
     for record in heard.autopilot.recorded:
         message = record.message
@@ -255,7 +260,8 @@ def _check_nothing_vouched(heard: Heard, fault_ns: int, end_ns: int) -> None:
             continue
         captured_ns = message.time_usec * 1000
         if captured_ns >= fault_ns:
-            assert not _known(message), f"data captured during the fault sent: {_known(message)}"
+            invented = [d for d in _known(message) if d > POLE_CM * 1.06]
+            assert not invented, f"data captured during the fault sent: {_known(message)}"
         else:
             age_ms = (record.received_ns - captured_ns) / 1e6
             assert age_ms <= MAX_AGE_MS + 500, f"pre-fault data sent {age_ms:.0f} ms old"
@@ -475,6 +481,56 @@ async def test_camera_fault(
     assert "Traceback" not in caplog.text
 
 
+async def test_a_view_without_texture_sends_nothing_to_ardupilot(
+    tmp_path: Path, caplog: pytest.LogCaptureFixture, capfd: pytest.CaptureFixture[str]
+) -> None:
+    """A working camera that sees no texture (fog): fresh data, not one bin known.
+
+    PX4 hears every bin unknown; ArduPilot would read that as a clear view, so it hears
+    nothing and says "PRX1: No Data" itself. The camera and the pipeline are fine: ACTIVE.
+    """
+    caplog.set_level(logging.INFO, logger="avoidd")
+    world = CameraWorld()
+
+    def open_camera(config: Any, rig: Any, head: str, paced: bool, input_path: Any = None) -> Any:
+        return V4l2Source(config, head, world.device)
+
+    port = free_udp_port()
+    autopilot = MockAutopilot(flavour="ardupilot", system_id=7)
+    await autopilot.start(f"udpin:127.0.0.1:{port}")
+    config, calibrations = load_all(_camera_config(tmp_path, port))
+    daemon = Daemon(config, calibrations, open_source=open_camera)
+    task = asyncio.create_task(daemon.run())
+    heard = Heard(autopilot)
+    try:
+        started_ns = time.monotonic_ns()
+        assert await wait_for(
+            lambda: any(_known(m) for m in heard.since("OBSTACLE_DISTANCE", started_ns)), 30.0
+        ), "never healthy"
+        world.fault = "textureless"
+        fault_ns, fault_s = time.monotonic_ns(), time.time()
+        head = daemon.heads[0]
+        processed = head.stats.processed
+        await asyncio.sleep(2.5)
+        assert head.stats.processed > processed + 5  # the frames are fine and processed
+        late_ns = fault_ns + (MAX_AGE_MS + 500) * 1_000_000
+        assert heard.since("OBSTACLE_DISTANCE", late_ns) == []
+        _check_nothing_vouched(heard, fault_ns, time.monotonic_ns())
+        assert {m.system_status for m in heard.since("HEARTBEAT", fault_ns)} == {
+            mav.MAV_STATE_ACTIVE
+        }
+        _check_logs(caplog, capfd, fault_s, r"fresh data but no bin measured")
+        world.fault = None
+        back_ns = time.monotonic_ns()
+        assert await wait_for(
+            lambda: any(_known(m) for m in heard.since("OBSTACLE_DISTANCE", back_ns)), REACT_S
+        )
+    finally:
+        daemon.stop()
+        assert await asyncio.wait_for(task, timeout=30.0) == 0
+        await autopilot.stop()
+
+
 # --- the pure parts of the camera answers -----------------------------------------------------
 
 
@@ -488,11 +544,11 @@ def test_blind_views_give_no_clear_bin(tmp_path: Path, level: str) -> None:
     config, calibrations = load_all(_camera_config(tmp_path, free_udp_port()))
     pipeline = HeadPipeline(config.heads[0], calibrations["front"], 20.0, config.perception)
     rng = np.random.default_rng(1)
-    left, right = VIEWS[0]
+    left, right = views()[0]
     black = rng.integers(0, 4, left.shape, dtype=np.uint8)
     white = np.full(left.shape, 255, dtype=np.uint8)
-    views = {"black": (black, black), "saturated": (white, white), "left-black": (black, right)}
-    frame = StereoFrame(0, time.monotonic_ns(), *views[level])
+    pairs = {"black": (black, black), "saturated": (white, white), "left-black": (black, right)}
+    frame = StereoFrame(0, time.monotonic_ns(), *pairs[level])
     bins = sectors_to_cm(pipeline.process(frame).scan, 20, 2000)
     assert CLEAR_CM not in bins
     assert set(bins) == {UNKNOWN_CM}
@@ -504,7 +560,7 @@ def test_frame_check_drops_repeats_and_says_frozen_once(caplog: pytest.LogCaptur
 
     caplog.set_level(logging.INFO, logger="avoidd")
     check = FrameCheck("front")
-    frames = [StereoFrame(i, i, *VIEWS[i % len(VIEWS)]) for i in range(3)]
+    frames = [StereoFrame(i, i, *views()[i % len(views())]) for i in range(3)]
     assert check.usable(frames[0]) and check.usable(frames[1])
     assert not check.usable(frames[1]._replace(seq=2, t_capture_ns=2))  # one repeat: dropped
     assert check.fault is None and not caplog.records  # ...silently
@@ -522,7 +578,7 @@ def test_frame_check_drops_repeats_and_says_frozen_once(caplog: pytest.LogCaptur
 def test_a_dark_but_textured_view_is_not_blind() -> None:
     from avoidd.daemon.framecheck import blind_view
 
-    left = VIEWS[0][0]
+    left = views()[0][0]
     assert blind_view(left) is None
     assert blind_view((left // 8).astype(np.uint8)) is None  # underexposed, still texture
     assert blind_view(np.zeros_like(left)) == "black"
@@ -536,7 +592,7 @@ def _write_pairs(folder: Path, count: int) -> Path:
     (folder / "left").mkdir(parents=True)
     (folder / "right").mkdir()
     for index in range(count):
-        left, right = VIEWS[index % len(VIEWS)]
+        left, right = views()[index % len(views())]
         cv2.imwrite(str(folder / "left" / f"{index:04d}.png"), left)
         cv2.imwrite(str(folder / "right" / f"{index:04d}.png"), right)
     return folder
@@ -553,7 +609,7 @@ def _write_video(path: Path, count: int) -> Path:
     )
     assert writer.isOpened()
     for index in range(count):
-        writer.write(np.hstack(VIEWS[index % len(VIEWS)]))
+        writer.write(np.hstack(views()[index % len(views())]))
     writer.release()
     return path
 
