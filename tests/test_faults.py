@@ -20,7 +20,7 @@ fault                                  test
 camera: device missing at start        ``test_camera_fault[missing]`` (then plugged in)
 camera: vanishing and returning        ``test_camera_fault[vanishing]``; *also*
                                        test_supervision.py (backoff, counters)
-camera: frozen (same image, new time)  ``test_camera_fault[frozen]``,
+camera: frozen (same image, new time)  ``test_camera_fault[frozen|frozen-ardupilot]``,
                                        ``test_frame_check_drops_repeats_and_says_frozen_once``
 camera: black / saturated              ``test_camera_fault[black|saturated]``; the texture gate
                                        alone: ``test_blind_views_give_no_clear_bin``
@@ -28,8 +28,9 @@ camera: no texture (fog, blank wall)   ``test_a_view_without_texture_sends_nothi
 camera: wrong size / pixel format      ``test_camera_fault[wrong-size|pixel-format]``
 camera: one side missing               ``test_camera_fault[one-side-missing]``
 camera: the two sides out of sync      ``test_camera_fault[out-of-sync]``
-compute: matcher raises / stalls       ``test_camera_fault[matcher-raises|matcher-stalls]``
-                                       (they print the measured times to CRITICAL)
+compute: matcher raises / stalls       ``test_camera_fault[matcher-raises|matcher-stalls]``,
+                                       ``...[matcher-stalls-ardupilot]`` (every case prints
+                                       its measured times to CRITICAL)
 files: empty folder, unequal counts,   ``test_files_fault_at_start``: a configuration error
 first image corrupt, garbage           (exit 2, one line, nothing started); *also*
 frames.csv, empty video                test_bad_input.py (more frames.csv cases)
@@ -299,6 +300,12 @@ class CameraCase:
     """The fault is there when the daemon starts (else it begins once data flows)."""
     recovers: bool = True
     """The fault ends and the daemon must say so."""
+    flavour: str = "px4"
+    """The autopilot: PX4 hears every bin unknown when nothing is fresh, ArduPilot nothing."""
+
+    @property
+    def name(self) -> str:
+        return self.fault if self.flavour == "px4" else f"{self.fault}-{self.flavour}"
 
 
 CAMERA_CASES = [
@@ -317,6 +324,12 @@ CAMERA_CASES = [
         "frozen",
         r"head 'front': camera frozen: the same image \d+ times in a row",
         r"^avoidd: front stale, camera frozen$",
+    ),
+    CameraCase(
+        "frozen",
+        r"head 'front': camera frozen: the same image \d+ times in a row",
+        r"^avoidd: front stale, camera frozen$",
+        flavour="ardupilot",
     ),
     CameraCase(
         "black",
@@ -360,6 +373,12 @@ CAMERA_CASES = [
         r"head 'front': data stale \(compute late\); its sectors are unknown",
         r"^avoidd: front stale, compute late$",
     ),
+    CameraCase(
+        "matcher-stalls",
+        r"head 'front': data stale \(compute late\); its sectors are unknown",
+        r"^avoidd: front stale, compute late$",
+        flavour="ardupilot",
+    ),
 ]
 
 
@@ -387,7 +406,7 @@ def _camera_config(tmp_path: Path, port: int) -> Path:
     )
 
 
-@pytest.mark.parametrize("case", CAMERA_CASES, ids=lambda case: case.fault)
+@pytest.mark.parametrize("case", CAMERA_CASES, ids=lambda case: case.name)
 async def test_camera_fault(
     tmp_path: Path,
     caplog: pytest.LogCaptureFixture,
@@ -411,7 +430,7 @@ async def test_camera_fault(
         return V4l2Source(config, head, world.device)
 
     port = free_udp_port()
-    autopilot = MockAutopilot(flavour="px4", system_id=7)
+    autopilot = MockAutopilot(flavour=case.flavour, system_id=7)
     await autopilot.start(f"udpin:127.0.0.1:{port}")
     config, calibrations = load_all(_camera_config(tmp_path, port))
     daemon = Daemon(config, calibrations, open_source=open_camera)
@@ -445,16 +464,26 @@ async def test_camera_fault(
         await asyncio.sleep(1.5)  # the fault lasts
         end_ns = time.monotonic_ns()
         _check_nothing_vouched(heard, fault_ns, end_ns)
-        # While it lasts, the heartbeats say CRITICAL (PX4 still hears OBSTACLE_DISTANCE,
-        # every bin unknown).
+        # While it lasts, the heartbeats say CRITICAL; PX4 still hears OBSTACLE_DISTANCE, every
+        # bin unknown, ArduPilot hears nothing (and reports "PRX1: No Data").
         late = [m.system_status for m in heard.since("HEARTBEAT", critical_ns)]
         assert set(late) == {mav.MAV_STATE_CRITICAL}, late
-        assert heard.since("OBSTACLE_DISTANCE", critical_ns), "PX4 must hear 'no data'"
         lines = _check_logs(caplog, capfd, fault_s, case.log)
-        unknown_ns = heard.first("OBSTACLE_DISTANCE", fault_ns, lambda m: not _known(m))
-        assert unknown_ns is not None
+        if case.flavour == "px4":
+            assert heard.since("OBSTACLE_DISTANCE", critical_ns), "PX4 must hear 'no data'"
+            unknown_ns = heard.first("OBSTACLE_DISTANCE", fault_ns, lambda m: not _known(m))
+            assert unknown_ns is not None
+        else:
+            assert heard.since("OBSTACLE_DISTANCE", critical_ns) == []
+            sent = [r.received_ns for r in autopilot.recorded if r.received_ns >= fault_ns]
+            last = [
+                r.received_ns
+                for r in autopilot.recorded
+                if r.message.get_type() == "OBSTACLE_DISTANCE" and r.received_ns >= fault_ns
+            ]
+            unknown_ns = max(last, default=min(sent))
         print(
-            f"{case.fault}: every bin unknown after {(unknown_ns - fault_ns) / 1e6:.0f} ms, "
+            f"{case.name}: nothing known sent after {(unknown_ns - fault_ns) / 1e6:.0f} ms, "
             f"STATUSTEXT after {(text_ns - fault_ns) / 1e6:.0f} ms, HEARTBEAT CRITICAL after "
             f"{(critical_ns - fault_ns) / 1e6:.0f} ms (max_age_ms {MAX_AGE_MS}); "
             f"{len(lines)} warning lines: {lines}"
