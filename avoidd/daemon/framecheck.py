@@ -81,7 +81,7 @@ class FrameCheck:
         self.repeated = 0
         self.blind = 0
         self.fault: str | None = None
-        """"camera frozen" or "camera blind" while that lasts, else None."""
+        """What is wrong while it lasts ("camera frozen", "camera blind"), else None."""
 
     def usable(self, frame: StereoFrame) -> bool:
         """Whether a frame is news; a frame that is not is counted and must be dropped.
