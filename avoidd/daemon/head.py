@@ -214,7 +214,8 @@ class Head:
                 continue
             self._frame_good()
             if not self.frame_check.usable(frame):
-                continue  # frozen or blind: no news (counted and logged by the check)
+                self.stats.broken += 1  # frozen or blind: no news (logged by the check)
+                continue
             self.stats.captured += 1
             arrived_ns = time.monotonic_ns()
             self.arrival_age_ns = arrived_ns - frame.t_capture_ns
