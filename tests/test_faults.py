@@ -468,6 +468,8 @@ async def test_camera_fault(
         # bin unknown, ArduPilot hears nothing (and reports "PRX1: No Data").
         late = [m.system_status for m in heard.since("HEARTBEAT", critical_ns)]
         assert set(late) == {mav.MAV_STATE_CRITICAL}, late
+        if case.fault not in ("missing", "vanishing", "matcher-stalls"):
+            assert daemon.heads[0].stats.broken > 0  # the frames are dropped and counted
         lines = _check_logs(caplog, capfd, fault_s, case.log)
         if case.flavour == "px4":
             assert heard.since("OBSTACLE_DISTANCE", critical_ns), "PX4 must hear 'no data'"
