@@ -504,6 +504,8 @@ async def test_camera_fault(
             assert await wait_for(
                 lambda: any(_known(m) for m in heard.since("OBSTACLE_DISTANCE", back_ns)), 5.0
             )
+            if case.fault in ("missing", "vanishing"):
+                assert world.opens >= 2  # opened again, with backoff, until it was back
     finally:
         release.set()
         daemon.stop()
