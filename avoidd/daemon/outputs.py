@@ -29,6 +29,9 @@ from avoidd.types import SectorScan
 
 logger = logging.getLogger(__name__)
 
+_NOTHING_KNOWN_SAID_AFTER_NS = 1_000_000_000
+"""Fresh data without a known bin is logged once it has lasted this long."""
+
 
 async def every(rate_hz: float, send: Callable[[], None]) -> None:
     """Call ``send`` at ``rate_hz`` without drift (skipping ahead after a stall), forever.
@@ -92,6 +95,7 @@ class Outputs:
         """OBSTACLE_DISTANCE messages not sent for want of fresh data."""
         self._last_usec = 0
         self._blind_log = RepeatLimiter(logger)
+        self._nothing_known_since_ns: int | None = None
         nearest_m = max((head.pipeline.min_range_m for head in heads), default=0.0)
         self.min_cm, self.max_cm = config.obstacle_distance.range_cm(nearest_m)
         """The range the messages claim: from what the least capable head can measure."""
@@ -132,14 +136,20 @@ class Outputs:
         scan = self.current_scan(now_ns)
         if scan is not None and autopilot != PX4 and bool(np.isnan(scan.distance_m).all()):
             # Fresh, but not one bin known (a view without texture): as good as no data.
-            self._blind_log.report(
-                logging.WARNING,
-                "nothing known",
-                "fresh data but no bin measured (views without texture?); OBSTACLE_DISTANCE "
-                "withheld, which ArduPilot would read as a clear view",
-            )
+            # Said once it lasts (the temporal filter's first frames know nothing yet).
+            since_ns = self._nothing_known_since_ns
+            if since_ns is None:
+                self._nothing_known_since_ns = now_ns
+            elif now_ns - since_ns >= _NOTHING_KNOWN_SAID_AFTER_NS:
+                self._blind_log.report(
+                    logging.WARNING,
+                    "nothing known",
+                    "fresh data but no bin measured (views without texture?); "
+                    "OBSTACLE_DISTANCE withheld, which ArduPilot would read as a clear view",
+                )
             scan = None
         elif scan is not None:
+            self._nothing_known_since_ns = None
             self._blind_log.clear("bins measured again; OBSTACLE_DISTANCE sent again")
         if scan is None:
             if autopilot != PX4:
