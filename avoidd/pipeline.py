@@ -178,13 +178,24 @@ class HeadPipeline:
         return left, right, texture, step.ms
 
     def check_frame(self, frame: StereoFrame) -> None:
-        """Reject a frame whose size does not match the calibration.
+        """Reject a frame that the stages cannot take.
+
+        A view missing, of another pixel format than 8-bit grey, BGR or BGRA, or of another
+        size than the calibration's.
 
         Raises:
-            BrokenFrame: Wrong size or mismatched views.
+            BrokenFrame: A view missing, of the wrong pixel format or size.
         """
         expected = (self.rig.height, self.rig.width)
         for view, image in (("left", frame.left), ("right", frame.right)):
+            if not isinstance(image, np.ndarray):
+                raise BrokenFrame(f"head '{self.name}': no {view} image; frame {frame.seq} dropped")
+            channels = image.shape[2] if image.ndim == 3 else 1
+            if image.dtype != np.uint8 or image.ndim not in (2, 3) or channels not in (1, 3, 4):
+                raise BrokenFrame(
+                    f"head '{self.name}': {view} image is {image.dtype} with shape "
+                    f"{image.shape}, expected 8-bit grey, BGR or BGRA; frame {frame.seq} dropped"
+                )
             if image.shape[:2] != expected:
                 raise BrokenFrame(
                     f"head '{self.name}': {view} image is {image.shape[1]}x{image.shape[0]}, "

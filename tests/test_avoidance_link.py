@@ -115,7 +115,11 @@ async def test_stale_perception_is_an_explicit_zero_velocity_hold(tmp_path: Path
         assert daemon.avoidance.state == "stale"
         recent = _setpoints(autopilot)[-10:]
         assert all((m.vx, m.vy, m.vz) == (0, 0, 0) for m in recent)
-        assert "avoidd: avoidance stale" in [m.text for m in autopilot.of_type("STATUSTEXT")]
+        # STATUSTEXT is spaced 0.5 s apart: it may still wait behind the head's own.
+        assert await wait_for(
+            lambda: "avoidd: avoidance stale" in [m.text for m in autopilot.of_type("STATUSTEXT")],
+            5.0,
+        )
     finally:
         await stop(daemon, task)
         await autopilot.stop()

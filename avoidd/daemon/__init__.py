@@ -1,9 +1,10 @@
 """The daemon: capture threads, compute workers, the MAVLink send loops, health and shutdown.
 
-Modules, one job each: :mod:`.head` (a camera head at run time), :mod:`.announce` (operator
-STATUSTEXT), :mod:`.health` (pure freshness rules), :mod:`.outputs` (obstacle messages),
-:mod:`.stats` (the counters snapshot and log line) and :mod:`.core` (the :class:`Daemon` that
-composes them, supervises the tasks and owns the shutdown order).
+Modules, one job each: :mod:`.head` (a camera head at run time), :mod:`.framecheck` (frames
+that carry no news: frozen, blind), :mod:`.announce` (operator STATUSTEXT), :mod:`.health` (pure
+freshness rules), :mod:`.outputs` (obstacle messages), :mod:`.stats` (the counters snapshot
+and log line) and :mod:`.core` (the :class:`Daemon` that composes them, supervises the tasks
+and owns the shutdown order).
 """
 
 from avoidd.daemon.announce import Announcer

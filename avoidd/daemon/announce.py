@@ -63,12 +63,18 @@ async def send_statustext(
         before_each: Called before every drain, at least every 50 ms (the daemon checks its
             heads' freshness there, so that a head going stale is announced promptly).
     """
+    loop = asyncio.get_running_loop()
     while True:
         before_each()
         while announcer.pending:
             severity, text, _ = announcer.pending.popleft()
             link.send(link.codec.statustext(severity, text))
-            await asyncio.sleep(STATUSTEXT_MIN_INTERVAL_S)
+            # Spaced, but the checks go on meanwhile: a head going stale while a message
+            # waits out its spacing must not be noticed 0.5 s late.
+            next_s = loop.time() + STATUSTEXT_MIN_INTERVAL_S
+            while (wait_s := next_s - loop.time()) > 0:
+                await asyncio.sleep(min(wait_s, _IDLE_POLL_S))
+                before_each()
         announcer.wakeup.clear()
         with contextlib.suppress(TimeoutError):
             await asyncio.wait_for(announcer.wakeup.wait(), timeout=_IDLE_POLL_S)

@@ -315,7 +315,7 @@ class Daemon:
                 continue
             name = head.name
             if change:
-                why = health.stale_reason(
+                why = head.fault or health.stale_reason(
                     now_ns, head.last_frame_ns, head.arrival_age_ns, self._max_age_ns
                 )
                 logger.error("head '%s': data stale (%s); its sectors are unknown", name, why)
@@ -325,6 +325,8 @@ class Daemon:
             else:
                 logger.warning("head '%s': data fresh again", name)
                 self.announce(mav.MAV_SEVERITY_NOTICE, f"avoidd: {name} recovered", f"fresh {name}")
+            # Say the new state now rather than at the next periodic HEARTBEAT (up to 1 s on).
+            self.link.send(self.codec.heartbeat(health.mav_state(self.reported_stale())))
 
     async def _signing_loop(self) -> None:
         while True:

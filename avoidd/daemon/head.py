@@ -14,6 +14,7 @@ from pathlib import Path
 from typing import Protocol
 
 from avoidd.config import HeadConfig, PerceptionConfig, SourceConfig
+from avoidd.daemon.framecheck import FrameCheck
 from avoidd.errors import BrokenFrame, SourceError, SourceExhausted
 from avoidd.logrepeat import RepeatLimiter
 from avoidd.mavlink import codec as mav
@@ -115,6 +116,15 @@ class Head:
         self._compute_log = RepeatLimiter(logger)
         self._broken_in_row = 0
         self._lost_to_broken = False
+        self.frame_check = FrameCheck(self.name, repeats=config.source.kind != "synthetic")
+        self._compute_failing = False
+
+    @property
+    def fault(self) -> str | None:
+        """Why the head's data stops, when the head knows ("camera frozen" ...), else None."""
+        if self.frame_check.fault is not None:
+            return self.frame_check.fault
+        return "compute failing" if self._compute_failing else None
 
     @property
     def t_capture_ns(self) -> int | None:
@@ -183,6 +193,7 @@ class Head:
                 backoff_s = low_s
             try:
                 frame = self._read(source)
+                self.pipeline.check_frame(frame)  # wrong size or pixel format: dropped here
             except BrokenFrame as exc:
                 self.stats.broken += 1
                 self._frame_broken(exc)
@@ -208,6 +219,9 @@ class Head:
                 backoff_s = min(backoff_s * 2, high_s)
                 continue
             self._frame_good()
+            if not self.frame_check.usable(frame):
+                self.stats.broken += 1  # frozen or blind: no news (logged by the check)
+                continue
             self.stats.captured += 1
             arrived_ns = time.monotonic_ns()
             self.arrival_age_ns = arrived_ns - frame.t_capture_ns
@@ -231,7 +245,7 @@ class Head:
     def _frame_broken(self, exc: BrokenFrame) -> None:
         """Log an unreadable frame once per run of them; a long run means the camera is lost."""
         self._broken_in_row += 1
-        self._capture_log.report(logging.WARNING, "broken frames", f"head '{self.name}': {exc}")
+        self._capture_log.report(logging.WARNING, "broken frames", self._about(exc))
         if self._broken_in_row == LOST_AFTER_BROKEN and not self._lost_to_broken:
             self._lost_to_broken = True
             logger.error(
@@ -242,6 +256,11 @@ class Head:
             self._announce(
                 mav.MAV_SEVERITY_CRITICAL, f"avoidd: {self.name} camera lost", f"camera {self.name}"
             )
+
+    def _about(self, exc: Exception) -> str:
+        """An error's text with the head's name in front, unless it starts with it already."""
+        text, prefix = str(exc), f"head '{self.name}': "
+        return text if text.startswith(prefix) else prefix + text
 
     def _frame_good(self) -> None:
         """A usable frame arrived: end a run of unreadable ones."""
@@ -266,12 +285,18 @@ class Head:
                 result = await asyncio.to_thread(self.pipeline.process, frame, pose)
             except BrokenFrame as exc:
                 self.stats.broken += 1
-                self._compute_log.report(logging.WARNING, "broken", f"head '{self.name}': {exc}")
+                self._compute_log.report(logging.WARNING, "broken", self._about(exc))
                 continue
-            except Exception:
+            except Exception as exc:
+                # A bug in a stage: one line per run of failures, not a traceback per frame
+                # (the traceback is there at DEBUG level).
                 self.stats.broken += 1
-                logger.exception("head '%s': frame %d failed", self.name, frame.seq)
+                self._compute_failing = True
+                text = f"head '{self.name}': frame {frame.seq} failed ({exc!r}); dropped"
+                if self._compute_log.report(logging.ERROR, "failed", text):
+                    logger.debug("head '%s': the failure", self.name, exc_info=True)
                 continue
+            self._compute_failing = False
             self._compute_log.clear()
             went_back = self.latest is not None and result.t_capture_ns <= self.latest.t_capture_ns
             if went_back or frame.restarts != self._restarts_seen:

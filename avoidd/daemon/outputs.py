@@ -3,12 +3,16 @@
 from __future__ import annotations
 
 import asyncio
+import logging
 import time
 from collections.abc import Callable, Coroutine, Sequence
 from typing import Any
 
+import numpy as np
+
 from avoidd.config import MavlinkConfig
 from avoidd.daemon.head import Head
+from avoidd.logrepeat import RepeatLimiter
 from avoidd.mavlink.codec import Message
 from avoidd.mavlink.layout import layout_for
 from avoidd.mavlink.link import MavLink
@@ -22,6 +26,11 @@ from avoidd.mavlink.modes import ARDUPILOT, PX4
 from avoidd.mavlink.vehicle import Vehicle
 from avoidd.perception.sectors import merge_scans
 from avoidd.types import SectorScan
+
+logger = logging.getLogger(__name__)
+
+_NOTHING_KNOWN_SAID_AFTER_NS = 1_000_000_000
+"""Fresh data without a known bin is logged once it has lasted this long."""
 
 
 async def every(rate_hz: float, send: Callable[[], None]) -> None:
@@ -87,6 +96,8 @@ class Outputs:
         self.last_sent: tuple[int, Message] | None = None
         """The last OBSTACLE_DISTANCE sent and when (monotonic ns), for the debug view."""
         self._last_usec = 0
+        self._blind_log = RepeatLimiter(logger)
+        self._nothing_known_since_ns: int | None = None
         nearest_m = max((head.pipeline.min_range_m for head in heads), default=0.0)
         self.min_cm, self.max_cm = config.obstacle_distance.range_cm(nearest_m)
         """The range the messages claim: from what the least capable head can measure."""
@@ -117,13 +128,31 @@ class Outputs:
         :mod:`avoidd.mavlink.layout`). Without any: all bins unknown for PX4, which reads
         65535 as "no data"; nothing for ArduPilot, which takes a message of unknown bins as a
         healthy sensor with a clear view (without messages it reports "PRX1: No Data" within
-        0.5 s and fails pre-arm); nothing either for an autopilot not yet heard from.
+        0.5 s and fails pre-arm); nothing either for an autopilot not yet heard from. Fresh
+        data of which no bin is known is no data either.
         ``time_usec`` is the capture time on avoidd's monotonic clock, never going back
         (ArduPilot and PX4 both time the data from its arrival and do not read it).
         """
         autopilot = self.autopilot()
         layout = layout_for(autopilot)
         scan = self.current_scan(now_ns)
+        if scan is not None and autopilot != PX4 and bool(np.isnan(scan.distance_m).all()):
+            # Fresh, but not one bin known (a view without texture): as good as no data.
+            # Said once it lasts (the temporal filter's first frames know nothing yet).
+            since_ns = self._nothing_known_since_ns
+            if since_ns is None:
+                self._nothing_known_since_ns = now_ns
+            elif now_ns - since_ns >= _NOTHING_KNOWN_SAID_AFTER_NS:
+                self._blind_log.report(
+                    logging.WARNING,
+                    "nothing known",
+                    "fresh data but no bin measured (views without texture?); "
+                    "OBSTACLE_DISTANCE withheld, which ArduPilot would read as a clear view",
+                )
+            scan = None
+        elif scan is not None:
+            self._nothing_known_since_ns = None
+            self._blind_log.clear("bins measured again; OBSTACLE_DISTANCE sent again")
         if scan is None:
             if autopilot != PX4:
                 self.withheld += 1

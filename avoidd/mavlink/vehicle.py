@@ -142,6 +142,7 @@ class Vehicle:
         and missions need them)."""
         self._origin_asked_ns = -(10**18)
         self.ignored: Counter[int] = Counter()
+        self._said_ignored: set[int] = set()
         self.reboots = 0
         """Autopilot reboots seen (boot clock going back, or every stream silent)."""
         self.silent_streams = 0
@@ -192,7 +193,9 @@ class Vehicle:
             elif self.on_command is not None:
                 self.on_command(message)
             return
-        if source != self.system_id:
+        if source != self.system_id and not (
+            kind == "HEARTBEAT" and self._other_autopilot(message, source)
+        ):
             self.ignored[source] += 1
             return
         if message.get_srcComponent() != self.component_id:
@@ -205,6 +208,47 @@ class Vehicle:
             handler(message, received_ns)
         if self.on_autopilot is not None:
             self.on_autopilot(message, received_ns)
+
+    def _other_autopilot(self, message: mav.Message, source: int) -> bool:
+        """An autopilot of another system: follow it if ours went silent and the id is learned.
+
+        An autopilot whose system id was changed (SYSID_THISMAV, MAV_SYS_ID) comes back from
+        its reboot as another system. While the link is up, another autopilot is another
+        vehicle and is ignored. A configured id is never changed: the mismatch is said once
+        per system.
+
+        Returns:
+            True when avoidd now follows ``source``.
+        """
+        if self.link_up or not self._is_autopilot_heartbeat(message):
+            return False
+        previous = self.system_id
+        if self._config.fixed_system_id is not None:
+            if source not in self._said_ignored and len(self._said_ignored) < 16:
+                self._said_ignored.add(source)
+                logger.warning(
+                    "MAVLink: an autopilot speaks as system %d, but mavlink.system_id is %s; "
+                    "ignored (set mavlink.system_id to %d or 'auto')",
+                    source,
+                    previous,
+                    source,
+                )
+                self._announce(
+                    mav.MAV_SEVERITY_WARNING,
+                    f"avoidd: ignoring autopilot {source}, configured {previous}",
+                    "system",
+                )
+            return False
+        self.system_id = source
+        self._link.codec.system_id = source
+        self._forget()
+        self.mode = None
+        self.clock = ClockSync()
+        logger.warning(
+            "MAVLink: the autopilot is now system %d (was %s); following it", source, previous
+        )
+        self._announce(mav.MAV_SEVERITY_WARNING, f"avoidd: autopilot now system {source}", "system")
+        return True
 
     def _addressed_to_us(self, message: mav.Message) -> bool:
         codec = self._link.codec
@@ -374,7 +418,8 @@ class Vehicle:
             )
             self._announce(mav.MAV_SEVERITY_WARNING, "avoidd: link down", "link")
         if self.link_up:
-            self._check_silent_streams(now_ns)
+            if self._link.connected:  # a lost port or connection is said once, by the link
+                self._check_silent_streams(now_ns)
             self._request_streams(now_ns / 1e9)
             self._request_origin(now_ns)
 
@@ -385,6 +430,14 @@ class Vehicle:
     def _restart(self, why: str) -> None:
         """The autopilot rebooted: forget its state and ask for every stream again."""
         self.reboots += 1
+        self._forget()
+        logger.warning(
+            "vehicle %s rebooted (%s); asking for its streams again", self.system_id, why
+        )
+        self._announce(mav.MAV_SEVERITY_WARNING, "avoidd: autopilot rebooted", "autopilot")
+
+    def _forget(self) -> None:
+        """Forget what the autopilot said and what it was asked for."""
         self.attitude.clear()
         self.position = None
         self.rangefinder = None
@@ -394,10 +447,6 @@ class Vehicle:
             request.acked = request.refused = False
             request.attempts = 0
         self._pending = None
-        logger.warning(
-            "vehicle %s rebooted (%s); asking for its streams again", self.system_id, why
-        )
-        self._announce(mav.MAV_SEVERITY_WARNING, "avoidd: autopilot rebooted", "autopilot")
 
     def _check_silent_streams(self, now_ns: int) -> None:
         """Ask again for accepted streams that went silent (an autopilot that rebooted)."""

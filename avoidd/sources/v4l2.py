@@ -149,12 +149,15 @@ class V4l2Source:
         if not all(capture.grab() for capture in self._captures):
             raise SourceError(f"{self.description}: no frame (device lost?)")
         t_capture_ns = time.monotonic_ns()
+        self._check_sync(self._seq)
         images: list[Image] = []
-        for capture in self._captures:
+        for side, capture in zip(("left", "right"), self._captures, strict=False):
             ok, image = capture.retrieve()
             if not ok or image is None:
-                raise BrokenFrame(f"{self.description}: frame could not be decoded")
-            images.append(np.asarray(image, dtype=np.uint8))
+                what = "frame" if self._side_by_side else f"{side} view"
+                raise BrokenFrame(f"{self.description}: {what} could not be decoded")
+            # Never converted here: a 16-bit or odd format is refused by the head, not wrapped.
+            images.append(np.asarray(image))
         seq = self._seq
         self._seq += 1
         if self._side_by_side:
@@ -163,6 +166,29 @@ class V4l2Source:
             right = np.ascontiguousarray(images[0][:, half:])
             return StereoFrame(seq, t_capture_ns, left, right)
         return StereoFrame(seq, t_capture_ns, images[0], images[1])
+
+    def _check_sync(self, seq: int) -> None:
+        """Refuse two views the drivers stamped more than half a frame period apart.
+
+        Two free-running cameras drift in phase; a pair taken at different instants on a
+        moving vehicle gives wrong disparities, so it is dropped rather than measured.
+
+        Raises:
+            BrokenFrame: The views are out of sync.
+        """
+        if len(self._captures) != 2:
+            return
+        stamps_ms = [capture.get(cv2.CAP_PROP_POS_MSEC) for capture in self._captures]
+        if min(stamps_ms) <= 0:
+            return  # the driver gives no buffer timestamps
+        apart_ms = abs(stamps_ms[0] - stamps_ms[1])
+        limit_ms = 500.0 / self._config.fps
+        if apart_ms > limit_ms:
+            raise BrokenFrame(
+                f"{self.description}: left and right taken {apart_ms:.0f} ms apart (more than "
+                f"half a frame at {self._config.fps:g} fps); frame {seq} dropped; are the "
+                "cameras synchronised?"
+            )
 
     def close(self) -> None:
         """Release the devices."""

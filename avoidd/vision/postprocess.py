@@ -198,6 +198,8 @@ _NOISE_KERNEL_1D = np.array([1.0, -2.0, 1.0], dtype=np.float32)
 """Immerkaer's 3x3 kernel is the outer product of this with itself (separable)."""
 
 
+QUANTISATION_SIGMA = 1.0 / math.sqrt(12.0)
+"""Standard deviation of rounding to whole grey levels: the least noise an 8-bit image has."""
 _NOISE_BLOCK_PX = 16
 _NOISE_PERCENTILE = 10.0
 # The 10th percentile of 16 x 16 block means of pure noise lies 1.28 standard errors below
@@ -272,7 +274,9 @@ def texture_gate(grey: Image, window_px: int, min_snr: float) -> npt.NDArray[np.
     # n^2 times the variance of each row segment: n * sum(x^2) - sum(x)^2.
     spread = cv2.scaleAdd(total_sq, float(n), cv2.multiply(total, total, scale=-1.0))
     summed = cv2.sepFilter2D(spread, -1, one, ones, borderType=border)  # n^3 * mean variance
-    sigma = noise_sigma(grey)
+    # An 8-bit image is never known better than its rounding: without this floor a flat,
+    # noise-free image (a saturated or black frame) has sigma 0 and every pixel passes.
+    sigma = max(noise_sigma(grey), QUANTISATION_SIGMA)
     noise_variance = sigma * sigma * (1.0 - 1.0 / n)
     threshold = min_snr * min_snr * noise_variance * n * n * n
     return np.asarray(summed >= np.float32(threshold), dtype=np.bool_)
