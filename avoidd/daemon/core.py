@@ -114,6 +114,7 @@ class Daemon:
         self.vehicle = Vehicle(self.link, mavlink, self.announce)
         self._max_age_ns = config.pipeline.max_age_ms * 1_000_000
         self._reported: dict[str, health.Reported] = {}
+        self._heartbeat_state = mav.MAV_STATE_BOOT
         self._started_ns = 0
         self.debug_server: DebugServer | None = None
         """The debug view, when ``debug_server.enabled`` (built when :meth:`run` starts)."""
@@ -292,7 +293,7 @@ class Daemon:
     async def _heartbeat_loop(self) -> None:
         period_s = 1.0 / self.config.mavlink.heartbeat_hz
         while True:
-            self.link.send(self.codec.heartbeat(health.mav_state(self.reported_stale())))
+            self.link.send(self.codec.heartbeat(health.mav_state(self.heartbeat_stale())))
             await asyncio.sleep(period_s)
 
     def reported_stale(self) -> frozenset[str] | None:
@@ -301,12 +302,32 @@ class Daemon:
             return None
         return frozenset(name for name, state in self._reported.items() if state.stale)
 
+    def heartbeat_stale(self) -> frozenset[str] | None:
+        """Heads the HEARTBEAT counts as stale: too old right now, or still reported stale.
+
+        The HEARTBEAT says CRITICAL as soon as a head's data is too old (within ``max_age_ms``
+        of the last good frame), without the announcements' 0.5 s hold: a state is not read
+        aloud, and a short spell of CRITICAL is the safe side. It goes back to ACTIVE only
+        when the head is fresh and no longer reported stale (2 s of fresh data after a long
+        spell), so a head that keeps missing its deadline stays CRITICAL.
+        """
+        now_stale = self._stale_heads(time.monotonic_ns())
+        if now_stale is None:
+            return None
+        reported = frozenset(name for name, state in self._reported.items() if state.stale)
+        return reported | now_stale
+
     def _check_staleness(self) -> None:
         """Report heads that went stale or recovered (with hysteresis), saying why."""
         now_ns = time.monotonic_ns()
         stale = self._stale_heads(now_ns)
         if stale is None:
             return
+        beat_before = self._heartbeat_state
+        self._heartbeat_state = health.mav_state(self.heartbeat_stale())
+        if self._heartbeat_state != beat_before:
+            # Say the new state now rather than at the next periodic HEARTBEAT (up to 1 s on).
+            self.link.send(self.codec.heartbeat(self._heartbeat_state))
         for head in self.heads:
             change = self._reported.setdefault(head.name, health.Reported()).update(
                 head.name in stale, now_ns
@@ -325,8 +346,10 @@ class Daemon:
             else:
                 logger.warning("head '%s': data fresh again", name)
                 self.announce(mav.MAV_SEVERITY_NOTICE, f"avoidd: {name} recovered", f"fresh {name}")
-            # Say the new state now rather than at the next periodic HEARTBEAT (up to 1 s on).
-            self.link.send(self.codec.heartbeat(health.mav_state(self.reported_stale())))
+            state = health.mav_state(self.heartbeat_stale())
+            if state != self._heartbeat_state:
+                self._heartbeat_state = state
+                self.link.send(self.codec.heartbeat(state))
 
     async def _signing_loop(self) -> None:
         while True:
