@@ -223,6 +223,20 @@ def _unreachable(address: str, timeout_s: float = 3.0) -> str | None:
         return f"{host}:{port}: {exc.strerror or exc}"
 
 
+def _auto_address() -> str | None:
+    """Where ``auto`` points: ``RAY_ADDRESS``, or the last cluster started here (None: unknown).
+
+    A stale record of a cluster that has stopped would make Ray retry for minutes.
+    """
+    try:
+        from ray._private.services import get_ray_address_from_environment
+
+        found = get_ray_address_from_environment("auto", None)
+    except Exception:  # a private helper: without it, Ray's own search decides
+        return None
+    return found if isinstance(found, str) else None
+
+
 def _run_ray(
     jobs: list[BatchJob], address: str, workers: int, finished: Callable[[dict[str, Any]], None]
 ) -> None:
@@ -257,7 +271,8 @@ def _run_ray(
             "address": address,
             "runtime_env": {"py_modules": [package], "excludes": ["__pycache__"]},
         }
-    unreachable = _unreachable(address)
+    target = _auto_address() if address == "auto" else address
+    unreachable = _unreachable(target or address)
     if unreachable is not None:  # Ray itself would retry for half a minute or more
         raise RayUnavailable(_CANNOT_REACH.format(unreachable))
     try:
