@@ -278,16 +278,17 @@ def _run_ray(
     try:
         ray.init(**options, include_dashboard=False, logging_level=logging.WARNING)
     except ImportError as exc:  # ray:// needs the client's grpcio
-        raise RayUnavailable(f"{exc}; pip install 'ray[client]' for a ray:// address") from None
+        raise RayUnavailable(f"{exc}; pip install 'avoidd[ray]'") from None
     except (ConnectionError, TimeoutError, ValueError, RuntimeError) as exc:
         first = str(exc).strip().splitlines()[0] if str(exc).strip() else type(exc).__name__
         raise RayUnavailable(_CANNOT_REACH.format(first)) from None
     try:
         task = ray.remote(num_cpus=1)(run_job)
         pending = [task.remote(job) for job in jobs]
-        while pending:
-            ready, pending = ray.wait(pending, num_returns=1)
-            finished(ray.get(ready[0]))
+        while pending:  # whatever is done within a second, so that thousands of jobs stay cheap
+            ready, pending = ray.wait(pending, num_returns=len(pending), timeout=1.0)
+            for result in ray.get(ready):
+                finished(result)
     finally:
         ray.shutdown()
 
