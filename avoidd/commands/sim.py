@@ -5,12 +5,18 @@ from __future__ import annotations
 import argparse
 import json
 import os
+import sys
+from collections.abc import Callable
 from concurrent.futures import ProcessPoolExecutor, as_completed
+from dataclasses import dataclass
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
-from avoidd.commands import EXIT_FAILURE, EXIT_OK
+from avoidd.commands import EXIT_CONFIG, EXIT_FAILURE, EXIT_OK
 from avoidd.errors import ConfigError
+
+if TYPE_CHECKING:
+    from avoidd.config.sim import ScenarioConfig, WorldConfig
 
 
 def configure(name: str, parser: argparse.ArgumentParser) -> None:
@@ -34,6 +40,12 @@ def configure(name: str, parser: argparse.ArgumentParser) -> None:
     )
     batch.add_argument("--workers", type=int, default=os.cpu_count() or 1, help="local processes")
     batch.add_argument("--json", type=Path, help="also write every summary as JSON")
+    batch.add_argument(
+        "--ray",
+        metavar="ADDRESS",
+        help="run the jobs as Ray tasks on the cluster at ADDRESS (auto, ray://HOST:10001), "
+        "or 'local' to start a Ray instance here with --workers CPUs",
+    )
     batch.add_argument(
         "--max-speed",
         type=float,
@@ -137,41 +149,182 @@ def run_ardupilot(args: argparse.Namespace) -> int:
     return _report(summary, args.json)
 
 
-def _one(path: Path, seed: int, max_speed_m_s: float | None) -> dict[str, Any]:
-    from avoidd.sim.scenario import run_file
+@dataclass(frozen=True)
+class BatchJob:
+    """One run of a batch: the validated configs travel to the worker, never the paths.
 
-    _, summary = run_file(path, seed, max_speed_m_s)
-    return summary.as_json() | {"file": str(path), "wall_time_s": round(summary.wall_time_s, 1)}
+    A worker on another machine (``--ray``) has no copy of the driver's files.
+
+    Attributes:
+        file: The scenario file, as given (for the report and the sort order).
+        scenario: Its validated config.
+        world: Its world file's config (None: a generated world).
+        seed: The seed of this run.
+        max_speed_m_s: Top speed override (None: the scenario's).
+    """
+
+    file: str
+    scenario: ScenarioConfig
+    world: WorldConfig | None
+    seed: int
+    max_speed_m_s: float | None
+
+
+def run_job(job: BatchJob) -> dict[str, Any]:
+    """Run one batch job (in a local process or a Ray task: the same code); its summary row."""
+    from avoidd.sim.scenario import run_config
+
+    _, summary = run_config(job.scenario, job.world, job.seed, job.max_speed_m_s)
+    return summary.as_json() | {"file": job.file, "wall_time_s": round(summary.wall_time_s, 1)}
+
+
+class RayUnavailable(Exception):
+    """``--ray`` was given but Ray is not installed or the cluster cannot be reached."""
 
 
 def run_batch(args: argparse.Namespace) -> int:
-    """Run every scenario with seeds 1..N in local processes; exit 0 when all pass."""
+    """Run every scenario with seeds 1..N in local processes or on Ray; exit 0 when all pass."""
     from avoidd.config.sim import load_scenario
     from avoidd.progress import Progress
+    from avoidd.sim.scenario import world_of
 
-    for path in args.scenarios:
-        load_scenario(path)  # every file valid before anything runs
+    # Every file valid (and read, with its world file) before anything runs.
+    loaded = [(path, load_scenario(path)) for path in args.scenarios]
     if args.max_speed is not None and not 0.1 <= args.max_speed <= 20.0:
         raise ConfigError([f"--max-speed {args.max_speed}: give 0.1 to 20 m/s"])
-    jobs = [
-        (path, own_seed(path) + offset) for path in args.scenarios for offset in range(args.seeds)
-    ]
+    jobs = []
+    for path, scenario in loaded:
+        world = world_of(scenario)
+        seed = _own_seed(scenario, world)
+        jobs += [
+            BatchJob(str(path), scenario, world, seed + offset, args.max_speed)
+            for offset in range(args.seeds)
+        ]
     progress = Progress(len(jobs))
     results: list[dict[str, Any]] = []
-    with ProcessPoolExecutor(max_workers=max(1, args.workers)) as pool:
-        futures = {
-            pool.submit(_one, path, seed, args.max_speed): (path, seed) for path, seed in jobs
-        }
-        for future in as_completed(futures):
-            result = future.result()
-            results.append(result)
-            progress.step(f"{result['name']} seed {result['seed']}")
+
+    def finished(result: dict[str, Any]) -> None:
+        results.append(result)
+        progress.step(f"{result['name']} seed {result['seed']}")
+
+    if args.ray is None:
+        _run_local(jobs, max(1, args.workers), finished)
+    else:
+        try:
+            _run_ray(jobs, args.ray, max(1, args.workers), finished)
+        except RayUnavailable as exc:
+            progress.close()
+            print(f"--ray {args.ray}: {exc}", file=sys.stderr)
+            return EXIT_CONFIG
+    progress.close()
     results.sort(key=lambda r: (r["file"], r["seed"]))
     print(format_table(results))
     print(format_totals(results))
     if args.json is not None:
         args.json.write_text(json.dumps(results, indent=2) + "\n")
     return EXIT_OK if all(r["passed"] for r in results) else EXIT_FAILURE
+
+
+def _run_local(
+    jobs: list[BatchJob], workers: int, finished: Callable[[dict[str, Any]], None]
+) -> None:
+    """Run the jobs in local processes; hand each result over as it finishes."""
+    with ProcessPoolExecutor(max_workers=workers) as pool:
+        for future in as_completed([pool.submit(run_job, job) for job in jobs]):
+            finished(future.result())
+
+
+_CANNOT_REACH = (
+    "cannot reach the Ray cluster ({}); start one with 'ray start --head', give its address "
+    "(auto, ray://HOST:10001), or use --ray local"
+)
+
+
+def _unreachable(address: str, timeout_s: float = 3.0) -> str | None:
+    """Why a TCP connection to a ``[ray://]HOST:PORT`` address fails.
+
+    None: it opens, or the address names no port (``auto``, ``local``).
+    """
+    import socket
+
+    host, _, port = address.removeprefix("ray://").rpartition(":")
+    if not host or not port.isdigit():
+        return None
+    try:
+        with socket.create_connection((host, int(port)), timeout=timeout_s):
+            return None
+    except OSError as exc:
+        return f"{host}:{port}: {exc.strerror or exc}"
+
+
+def _auto_address() -> str | None:
+    """Where ``auto`` points: ``RAY_ADDRESS``, or the last cluster started here (None: unknown).
+
+    A stale record of a cluster that has stopped would make Ray retry for minutes.
+    """
+    try:
+        from ray._private.services import get_ray_address_from_environment
+
+        found = get_ray_address_from_environment("auto", None)
+    except Exception:  # a private helper: without it, Ray's own search decides
+        return None
+    return found if isinstance(found, str) else None
+
+
+def _run_ray(
+    jobs: list[BatchJob], address: str, workers: int, finished: Callable[[dict[str, Any]], None]
+) -> None:
+    """Run the jobs as Ray tasks on the cluster at ``address``; hand each result on when done.
+
+    ``local`` starts a private Ray instance on this machine with ``workers`` CPUs; any other
+    address (``auto``, ``ray://host:10001``) joins a running cluster, whose workers get this
+    driver's ``avoidd`` package (so every run is the same code as here) but must have its
+    dependencies installed.
+
+    Raises:
+        RayUnavailable: Ray is not installed, or the cluster cannot be reached.
+    """
+    try:
+        import ray
+    except ImportError:
+        raise RayUnavailable(
+            "Ray is not installed; pip install 'avoidd[ray]' (or run without --ray)"
+        ) from None
+    import importlib.util
+    import logging
+
+    if address.startswith("ray://") and importlib.util.find_spec("grpc") is None:
+        raise RayUnavailable("Ray Client is not installed; pip install 'avoidd[ray]'")
+    if address == "local":
+        options: dict[str, Any] = {"address": "local", "num_cpus": workers}
+    else:
+        import avoidd
+
+        package = str(Path(avoidd.__file__).parent)
+        options = {
+            "address": address,
+            "runtime_env": {"py_modules": [package], "excludes": ["__pycache__"]},
+        }
+    target = _auto_address() if address == "auto" else address
+    unreachable = _unreachable(target or address)
+    if unreachable is not None:  # Ray itself would retry for half a minute or more
+        raise RayUnavailable(_CANNOT_REACH.format(unreachable))
+    try:
+        ray.init(**options, include_dashboard=False, logging_level=logging.WARNING)
+    except ImportError as exc:  # ray:// needs the client's grpcio
+        raise RayUnavailable(f"{exc}; pip install 'avoidd[ray]'") from None
+    except (ConnectionError, TimeoutError, ValueError, RuntimeError) as exc:
+        first = str(exc).strip().splitlines()[0] if str(exc).strip() else type(exc).__name__
+        raise RayUnavailable(_CANNOT_REACH.format(first)) from None
+    try:
+        task = ray.remote(num_cpus=1)(run_job)
+        pending = [task.remote(job) for job in jobs]
+        while pending:  # whatever is done within a second, so that thousands of jobs stay cheap
+            ready, pending = ray.wait(pending, num_returns=len(pending), timeout=1.0)
+            for result in ray.get(ready):
+                finished(result)
+    finally:
+        ray.shutdown()
 
 
 def _number(value: float | None, digits: int = 2) -> str:
@@ -231,11 +384,11 @@ def format_totals(results: list[dict[str, Any]]) -> str:
     )
 
 
-def own_seed(path: Path) -> int:
+def _own_seed(scenario: ScenarioConfig, world: WorldConfig | None) -> int:
     """A scenario's own seed: its generator's, or its world file's."""
-    from avoidd.config.sim import GeneratedWorldConfig, load_scenario, load_world
+    from avoidd.config.sim import GeneratedWorldConfig
 
-    scenario = load_scenario(path)
     if isinstance(scenario.world, GeneratedWorldConfig):
         return scenario.world.seed
-    return load_world(scenario.world).seed
+    assert world is not None  # a scenario on a world file
+    return world.seed

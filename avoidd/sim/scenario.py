@@ -7,19 +7,29 @@ from dataclasses import asdict
 from pathlib import Path
 from typing import Any
 
-from avoidd.config.sim import GeneratedWorldConfig, ScenarioConfig, load_scenario, load_world
+from avoidd.config.sim import (
+    GeneratedWorldConfig,
+    ScenarioConfig,
+    WorldConfig,
+    load_scenario,
+    load_world,
+)
 from avoidd.planner.core import Goal
 from avoidd.sim.generators import generate
 from avoidd.sim.lockstep import LockstepRun, Summary
 from avoidd.sim.world import World
 
 
-def prepare(scenario: ScenarioConfig, seed: int | None = None) -> LockstepRun:
+def prepare(
+    scenario: ScenarioConfig, seed: int | None = None, world: WorldConfig | None = None
+) -> LockstepRun:
     """The run of a scenario; ``seed`` replaces a generator's seed (and seeds the noise).
 
     Args:
         scenario: The validated scenario.
         seed: Seed override (None: the scenario's own).
+        world: The scenario's world file, already loaded (None: load it here). A run on another
+            machine gets it this way and never opens the driver's paths.
 
     Returns:
         The run, ready to :meth:`~avoidd.sim.lockstep.LockstepRun.run`.
@@ -33,7 +43,7 @@ def prepare(scenario: ScenarioConfig, seed: int | None = None) -> LockstepRun:
         goal = scenario.goal or goal
         noise_seed = generator.seed
     else:
-        world_config = load_world(scenario.world)
+        world_config = world if world is not None else load_world(scenario.world)
         if seed is not None:
             world_config = world_config.model_copy(update={"seed": seed})
         assert scenario.goal is not None  # the model requires it with a world file
@@ -57,11 +67,37 @@ def run_file(
         seed: Seed override (None: the scenario's own).
         max_speed_m_s: Top speed override (a speed sweep over the same batch).
     """
-    scenario = load_scenario(path)
+    return run_config(load_scenario(path), None, seed, max_speed_m_s)
+
+
+def world_of(scenario: ScenarioConfig) -> WorldConfig | None:
+    """The scenario's world file, loaded and validated (None for a generated world)."""
+    if isinstance(scenario.world, GeneratedWorldConfig):
+        return None
+    return load_world(scenario.world)
+
+
+def run_config(
+    scenario: ScenarioConfig,
+    world: WorldConfig | None = None,
+    seed: int | None = None,
+    max_speed_m_s: float | None = None,
+) -> tuple[LockstepRun, Summary]:
+    """Prepare and run one validated scenario; no file is read when ``world`` is given.
+
+    The seam for workers on other machines (``sim batch --ray``): the driver loads and
+    validates the files, the worker runs from the configs.
+
+    Args:
+        scenario: The validated scenario.
+        world: Its world file's config (see :func:`world_of`; None: load it here).
+        seed: Seed override (None: the scenario's own).
+        max_speed_m_s: Top speed override (a speed sweep over the same batch).
+    """
     if max_speed_m_s is not None:
         avoidance = scenario.avoidance.model_copy(update={"max_speed_m_s": max_speed_m_s})
         scenario = scenario.model_copy(update={"avoidance": avoidance})
-    run = prepare(scenario, seed)
+    run = prepare(scenario, seed, world)
     return run, run.run()
 
 
