@@ -136,3 +136,21 @@ async def test_px4_takes_offboard_from_avoidds_prestream_in_real_time() -> None:
     assert not summary.collided, summary.as_json()
     travelled = max(s.north_m for s in summary.samples) - summary.samples[0].north_m
     assert travelled > 5.0, summary.as_json()
+
+
+def test_reported_position_and_attitude_carry_the_asked_noise() -> None:
+    autopilot = SimulatedAutopilot(position_noise_m=0.2, attitude_noise_rad=0.01, noise_seed=3)
+    autopilot.vehicle.state.position_m = np.array([4.0, -2.0, -3.0])
+    position_id, attitude_id = mav.message_id("LOCAL_POSITION_NED"), mav.message_id("ATTITUDE")
+    positions = [autopilot.stream_message(position_id) for _ in range(400)]
+    north = np.array([m.x for m in positions if m is not None])
+    assert north.mean() == pytest.approx(4.0, abs=0.05) and north.std() == pytest.approx(
+        0.2, rel=0.2
+    )
+    attitudes = [autopilot.stream_message(attitude_id) for _ in range(400)]
+    roll = np.array([m.roll for m in attitudes if m is not None])
+    assert roll.std() == pytest.approx(0.01, rel=0.2)
+    exact = SimulatedAutopilot()
+    exact.vehicle.state.position_m = np.array([4.0, -2.0, -3.0])
+    message = exact.stream_message(position_id)
+    assert message is not None and (message.x, message.y, message.z) == (4.0, -2.0, -3.0)

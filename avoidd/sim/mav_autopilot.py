@@ -13,6 +13,7 @@ from __future__ import annotations
 
 import asyncio
 import contextlib
+import math
 import time
 from collections.abc import Callable
 from dataclasses import dataclass, field
@@ -67,11 +68,18 @@ class SimulatedAutopilot(MockAutopilot):
         vehicle: The simulated multirotor (its state is what the autopilot reports).
         rules: The autopilot's rules (modes, setpoints, simple avoidance).
         on_step: Called after every physics step with the time in ns (collision checks).
+        position_noise_m: Standard deviation of the noise on the reported position (an
+            estimator's jitter; 0: exact).
+        attitude_noise_rad: Standard deviation of the noise on the reported roll, pitch, yaw.
+        noise_seed: Seed of that noise.
     """
 
     vehicle: Multirotor = field(default_factory=Multirotor)
     rules: SimAutopilot = field(default_factory=SimAutopilot)
     on_step: Callable[[int], None] | None = None
+    position_noise_m: float = 0.0
+    attitude_noise_rad: float = 0.0
+    noise_seed: int = 0
 
     def __post_init__(self) -> None:
         self.rules.flavour = self.flavour
@@ -81,6 +89,7 @@ class SimulatedAutopilot(MockAutopilot):
         super().__post_init__()
         self.mode = self.rules.mode
         self._physics: asyncio.Task[None] | None = None
+        self._noise = np.random.default_rng(self.noise_seed)
         self._attitude_rad = (0.0, 0.0, self.vehicle.state.yaw_rad)
 
     # --- what it reports ---------------------------------------------------------------------
@@ -97,10 +106,13 @@ class SimulatedAutopilot(MockAutopilot):
         name = mav.message_name(msg_id)
         if name == "ATTITUDE":
             roll, pitch = state.roll_pitch_rad()
+            roll, pitch, yaw = self._noisy((roll, pitch, state.yaw_rad), self.attitude_noise_rad)
+            yaw = math.remainder(yaw, math.tau)
             rate = state.yaw_rate_rad_s
-            return self.codec.build("ATTITUDE", t_ms, roll, pitch, state.yaw_rad, 0.0, 0.0, rate)
+            return self.codec.build("ATTITUDE", t_ms, roll, pitch, yaw, 0.0, 0.0, rate)
         if name == "LOCAL_POSITION_NED":
-            north, east, down = (float(v) for v in state.position_m)
+            position = (float(v) for v in state.position_m)
+            north, east, down = self._noisy(tuple(position), self.position_noise_m)
             vn, ve, vd = (float(v) for v in state.velocity_m_s)
             return self.codec.build("LOCAL_POSITION_NED", t_ms, north, east, down, vn, ve, vd)
         if name == "DISTANCE_SENSOR":
@@ -109,6 +121,13 @@ class SimulatedAutopilot(MockAutopilot):
                 t_ms, 10, 4000, min(height_cm, 4000), mav.MAV_SENSOR_ROTATION_PITCH_270, 100
             )
         return super().stream_message(msg_id)
+
+    def _noisy(self, values: tuple[float, ...], std: float) -> tuple[float, ...]:
+        if std <= 0.0:
+            return values
+        return tuple(
+            float(v) for v in np.asarray(values) + self._noise.normal(0.0, std, len(values))
+        )
 
     # --- what it hears -----------------------------------------------------------------------
 
