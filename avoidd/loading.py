@@ -5,7 +5,8 @@ from __future__ import annotations
 import os
 from pathlib import Path
 
-from avoidd.config import AppConfig, FilesSourceConfig, HeadConfig, load_config
+from avoidd.config import AppConfig, FilesSourceConfig, HeadConfig, SimSourceConfig, load_config
+from avoidd.config.sim import load_world
 from avoidd.errors import BrokenFrame, ConfigError, SourceError, SourceExhausted
 from avoidd.mavlink.messages import sensor_orientation
 from avoidd.mavlink.signing import load_key
@@ -60,6 +61,8 @@ def load_all(path: Path, input_given: bool = False) -> tuple[AppConfig, dict[str
                 f"(roll {head.mount.roll_deg}); make the mount pitch equal camera_pitch_deg, "
                 "roll 0"
             )
+        if isinstance(head.source, SimSourceConfig):
+            problems.extend(_check_sim_source(path, head, calibration))
         if config.mavlink.distance_sensor.enabled:
             m = head.mount
             if sensor_orientation(Mount(m.yaw_deg, m.pitch_deg, m.roll_deg)) is None:
@@ -88,6 +91,22 @@ def load_all(path: Path, input_given: bool = False) -> tuple[AppConfig, dict[str
     if problems:
         raise ConfigError(problems)
     return config, calibrations
+
+
+def _check_sim_source(path: Path, head: HeadConfig, calibration: Calibration) -> list[str]:
+    """A ``sim`` source's world file is valid and its rig is one the renderer draws."""
+    assert isinstance(head.source, SimSourceConfig)
+    problems = []
+    try:
+        load_world(head.source.world)
+    except ConfigError as exc:
+        problems.extend(exc.lines)
+    if calibration.rig.doffs_px != 0.0:
+        problems.append(
+            f"{path}: heads.{head.name}.source: a sim source renders rigs with doffs 0; "
+            f"{calibration.source} has doffs {calibration.rig.doffs_px:g} px: use a rectified rig"
+        )
+    return problems
 
 
 def head_min_range_m(head: HeadConfig, calibration: Calibration) -> float:

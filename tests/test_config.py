@@ -39,6 +39,7 @@ from avoidd.config import (
     ServiceConfig,
     SgbmConfig,
     SigningConfig,
+    SimSourceConfig,
     StreamsConfig,
     SyntheticObstacleConfig,
     SyntheticSourceConfig,
@@ -123,7 +124,7 @@ def test_shipped_configs_validate(name: str) -> None:
             "kind: synthetic",
             "kind: webcam",
             "avoidd.yaml:6: heads[0].source.kind: unknown kind 'webcam'; "
-            "use one of 'synthetic', 'files', 'v4l2'",
+            "use one of 'synthetic', 'files', 'v4l2', 'sim'",
         ),
         (
             "fps: 15",
@@ -376,7 +377,10 @@ heads:
       kind: census
   - name: segments
     calibration: calib.yaml
-    source: {kind: synthetic}
+    source:
+      #@ heads[3].source
+      kind: sim
+      world: world.yaml
     matcher:
       #@ heads[3].matcher
       kind: segment
@@ -451,6 +455,7 @@ SECTION_MODELS: dict[str, type[BaseModel]] = {
     "heads[1].matcher": SadConfig,
     "heads[2].source": V4l2SourceConfig,
     "heads[2].matcher": CensusConfig,
+    "heads[3].source": SimSourceConfig,
     "heads[3].matcher": SegmentConfig,
     "mavlink": MavlinkConfig,
     "mavlink.obstacle_distance": ObstacleDistanceConfig,
@@ -495,6 +500,7 @@ def misspell(name: str) -> str:
 def every_section_file(tmp_path: Path, typo_at: str | None = None) -> tuple[Path, int]:
     """The file with every section, a misspelt key at ``typo_at``; returns it and that line."""
     (tmp_path / "frames").mkdir(exist_ok=True)
+    (tmp_path / "world.yaml").write_text("version: 1\nobstacles: []\n")
     lines = EVERY_SECTION.splitlines()
     typo_line = 0
     for number, line in enumerate(lines, start=1):
@@ -514,7 +520,7 @@ def test_every_section_is_in_the_unknown_key_file(tmp_path: Path) -> None:
         SyntheticSourceConfig,
         FilesSourceConfig,
         V4l2SourceConfig,
-        SyntheticSourceConfig,
+        SimSourceConfig,
     ]
     assert [head.matcher.kind for head in config.heads] == ["sgbm", "sad", "census", "segment"]
 

@@ -52,7 +52,7 @@ def test_reference_carries_types_defaults_and_bounds() -> None:
     assert "## `mavlink`" in text
     assert "| heartbeat_hz | number | 1.0 | >= 0.5, <= 10.0 |" in text
     assert "## `heads[].source (kind: v4l2)`" in text
-    assert "| source | kind: synthetic \\| files \\| v4l2 | required |" in text
+    assert "| source | kind: synthetic \\| files \\| v4l2 \\| sim | required |" in text
     # The bounds of each item of a tuple reach its row.
     assert "| position_m | [number, number, number] | [0.0, 0.0, 0.0] | each >= -5.0, <= 5.0 |" in (
         text

@@ -4,22 +4,28 @@ from __future__ import annotations
 
 import math
 import time
+from pathlib import Path
 
 import numpy as np
 import pytest
 
-from avoidd.config import MavlinkConfig
+from avoidd.config import MavlinkConfig, load_config
 from avoidd.config.sim import WorldConfig
-from avoidd.errors import BrokenFrame
+from avoidd.errors import BrokenFrame, ConfigError, SourceError
+from avoidd.loading import load_all
 from avoidd.mavlink import codec as mav
 from avoidd.mavlink.geo import GlobalPoint, north_east_m, offset_lat_lon
 from avoidd.mavlink.link import MavLink
+from avoidd.mavlink.mock_autopilot import MockAutopilot
 from avoidd.mavlink.vehicle import Vehicle
 from avoidd.sim.lockstep import RIGS
+from avoidd.sim.mav_autopilot import scan_from_message
 from avoidd.sim.pose_source import PoseRenderedSource, VehiclePose, vehicle_pose
 from avoidd.sim.render import StereoRenderer
 from avoidd.sim.world import World
+from avoidd.sources import open_source
 from avoidd.types import Mount
+from tests.helpers import free_udp_port, start_daemon, stop_daemon, synthetic_config, wait_for
 
 COPTER = 2
 WALL = {
@@ -104,3 +110,52 @@ def test_offset_lat_lon_inverts_north_east(
     assert -180.0 <= lon <= 180.0
     back = north_east_m(origin, lat, lon)
     assert math.hypot(back[0] - north_m, back[1] - east_m) < 1e-6
+
+
+WORLDS = Path(__file__).resolve().parents[1] / "sitl" / "worlds"
+
+
+async def test_a_sim_head_in_the_daemon_sees_the_world_from_the_autopilots_pose(
+    tmp_path: Path,
+) -> None:
+    """``source: {kind: sim}``: avoidd run against an autopilot that simulates the vehicle."""
+    # The autopilot reports the vehicle 4 m south of the world's wall line, 2.5 m up, level,
+    # heading north; the wall (12 m ahead of the world's origin) is then 8 m away, less half
+    # its thickness.
+    autopilot = MockAutopilot(
+        system_id=7, attitude=lambda _t: (0.0, 0.0, 0.0), position_ned=(4.0, 0.0, -2.5)
+    )
+    port = free_udp_port()
+    await autopilot.start(f"udpin:127.0.0.1:{port}")
+    source = {
+        "kind": "sim",
+        "world": str(WORLDS / "wall-ahead.yaml"),
+        "fps": 10,
+        "origin_ne_m": [0, 0],
+    }
+    config = synthetic_config(tmp_path, f"udpout:127.0.0.1:{port}", source=source)
+    daemon, task = await start_daemon(config)
+    try:
+
+        def wall_seen() -> bool:
+            scans = [scan_from_message(m) for m in autopilot.of_type("OBSTACLE_DISTANCE")]
+            return any(abs(int(scan[0]) - 785) <= 40 for scan in scans)
+
+        assert await wait_for(wall_seen, 20.0), [
+            int(scan_from_message(m)[0]) for m in autopilot.of_type("OBSTACLE_DISTANCE")[-5:]
+        ]
+    finally:
+        await stop_daemon(daemon, task)
+        await autopilot.stop()
+
+
+def test_check_config_refuses_a_broken_world_and_replay_explains(tmp_path: Path) -> None:
+    world = tmp_path / "world.yaml"
+    world.write_text("version: 1\nobstacles:\n  - {shape: wall, start_ne_m: [1, 2]}\n")
+    source = {"kind": "sim", "world": str(world)}
+    config = synthetic_config(tmp_path, "udpout:127.0.0.1:14550", source=source)
+    with pytest.raises(ConfigError) as refused:
+        load_all(config)
+    assert any("world.yaml:3" in line for line in refused.value.lines), refused.value.lines
+    with pytest.raises(SourceError, match="only `avoidd run`"):
+        open_source(load_config(config).heads[0].source, RIGS["320x240"], "front", False)

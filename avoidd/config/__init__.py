@@ -29,6 +29,7 @@ from avoidd.config.perception import (
 from avoidd.config.service import ServiceConfig
 from avoidd.config.sources import (
     FilesSourceConfig,
+    SimSourceConfig,
     SourceConfig,
     SyntheticObstacleConfig,
     SyntheticSourceConfig,
@@ -82,6 +83,7 @@ __all__ = [
     "ServiceConfig",
     "SgbmConfig",
     "SigningConfig",
+    "SimSourceConfig",
     "SourceConfig",
     "StreamsConfig",
     "Strict",

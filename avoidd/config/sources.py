@@ -6,7 +6,7 @@ from typing import Annotated, Literal
 
 from pydantic import AfterValidator, Field, field_validator, model_validator
 
-from avoidd.config.base import ConfigPath, Strict, _existing_path
+from avoidd.config.base import ConfigPath, Lax, Strict, _existing_file, _existing_path
 
 
 class SyntheticObstacleConfig(Strict):
@@ -153,6 +153,36 @@ class V4l2SourceConfig(Strict):
         return value
 
 
+class SimSourceConfig(Strict):
+    """A simulated world rendered from the pose the autopilot reports (an external SITL).
+
+    For flying avoidd, unchanged, against a SITL autopilot (ArduPilot, PX4) that simulates
+    the vehicle: each frame is the world seen from the newest LOCAL_POSITION_NED and ATTITUDE
+    avoidd heard (see ``avoidd/sim/pose_source.py``). Only ``avoidd run`` opens it; the
+    calibration must be a rectified rig without ``doffs``.
+
+    Attributes:
+        world: A world file (``sitl/worlds/*.yaml``).
+        fps: Frames per second.
+        origin_ne_m: Where in the world the autopilot's local origin (its home) is, north and
+            east.
+        noise_std: Sensor noise in grey levels.
+    """
+
+    kind: Literal["sim"]
+    world: Annotated[ConfigPath, AfterValidator(_existing_file)]
+    fps: float = Field(10.0, ge=0.1, le=60.0)
+    origin_ne_m: Annotated[
+        tuple[
+            Annotated[float, Field(ge=-1000.0, le=1000.0)],
+            Annotated[float, Field(ge=-1000.0, le=1000.0)],
+        ],
+        Lax,
+    ] = (0.0, 0.0)
+    noise_std: float = Field(1.0, ge=0.0, le=20.0)
+
+
 SourceConfig = Annotated[
-    SyntheticSourceConfig | FilesSourceConfig | V4l2SourceConfig, Field(discriminator="kind")
+    SyntheticSourceConfig | FilesSourceConfig | V4l2SourceConfig | SimSourceConfig,
+    Field(discriminator="kind"),
 ]

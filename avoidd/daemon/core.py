@@ -10,10 +10,11 @@ import threading
 import time
 from collections import Counter
 from collections.abc import Callable, Coroutine
+from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
 from avoidd import sources
-from avoidd.config import AppConfig, MavlinkConfig
+from avoidd.config import AppConfig, MavlinkConfig, SimSourceConfig, SourceConfig
 from avoidd.daemon import health
 from avoidd.daemon.announce import Announcer, send_statustext
 from avoidd.daemon.avoidance import AvoidanceLoop
@@ -28,7 +29,8 @@ from avoidd.mavlink.link import MavLink
 from avoidd.mavlink.signing import TimestampStore, load_key
 from avoidd.mavlink.vehicle import Vehicle
 from avoidd.perception.pose import resolve_pose
-from avoidd.types import FramePose, StereoFrame
+from avoidd.sources.base import FrameSource
+from avoidd.types import FramePose, Mount, RectifiedRig, StereoFrame
 from avoidd.vision.calibration import Calibration
 
 if TYPE_CHECKING:
@@ -88,9 +90,7 @@ class Daemon:
         self.config = config
         self._on_frame = on_frame
         self._calibrations = calibrations
-        self._open_source: OpenSource = (
-            open_source if open_source is not None else sources.open_source
-        )
+        self._open_source: OpenSource = open_source if open_source is not None else self._open
         self._stop_threads = threading.Event()
         self._stopping = asyncio.Event()
         self.heads: list[Head] = []
@@ -118,6 +118,23 @@ class Daemon:
         self._started_ns = 0
         self.debug_server: DebugServer | None = None
         """The debug view, when ``debug_server.enabled`` (built when :meth:`run` starts)."""
+
+    def _open(
+        self,
+        config: SourceConfig,
+        rig: RectifiedRig,
+        head: str,
+        paced: bool,
+        input_path: Path | None = None,
+    ) -> FrameSource:
+        """Open a head's source; a ``sim`` one renders from the pose this daemon hears."""
+        if isinstance(config, SimSourceConfig):
+            from avoidd.sim.pose_source import open_sim_source  # the renderer only when used
+
+            m = next(h.mount for h in self.config.heads if h.name == head)
+            mount = Mount(m.yaw_deg, m.pitch_deg, m.roll_deg, m.position_m)
+            return open_sim_source(config, rig, mount, self.vehicle)
+        return sources.open_source(config, rig, head, paced, input_path)
 
     @property
     def sent(self) -> Counter[str]:

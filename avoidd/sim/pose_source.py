@@ -17,11 +17,14 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from avoidd.errors import BrokenFrame
+from avoidd.config.sim import load_world
+from avoidd.config.sources import SimSourceConfig
+from avoidd.errors import BrokenFrame, SourceError
 from avoidd.mavlink.vehicle import Vehicle
 from avoidd.sim.render import StereoRenderer
+from avoidd.sim.world import World
 from avoidd.sources.base import Pacer
-from avoidd.types import StereoFrame
+from avoidd.types import Mount, RectifiedRig, StereoFrame
 
 
 @dataclass(frozen=True)
@@ -160,3 +163,25 @@ class PoseRenderedSource:
 
     def close(self) -> None:
         """Nothing to release."""
+
+
+def open_sim_source(
+    config: SimSourceConfig, rig: RectifiedRig, mount: Mount, vehicle: Vehicle
+) -> PoseRenderedSource:
+    """A head's ``kind: sim`` source: its world rendered from the autopilot's reported pose.
+
+    Args:
+        config: The head's source section.
+        rig: The head's rectified rig (``doffs`` 0: the renderer's model).
+        mount: The head's mount.
+        vehicle: The daemon's view of the autopilot.
+
+    Raises:
+        SourceError: The rig has a ``doffs`` the renderer cannot draw.
+    """
+    if rig.doffs_px != 0.0:
+        raise SourceError("a sim source renders rigs with doffs 0; use a rectified calibration")
+    world = World.from_config(load_world(config.world))
+    renderer = StereoRenderer(world, rig, mount, config.noise_std)
+    pose_at = vehicle_pose(vehicle, config.origin_ne_m)
+    return PoseRenderedSource(renderer, pose_at, config.fps, seed=world.seed)

@@ -4,7 +4,13 @@ from __future__ import annotations
 
 from pathlib import Path
 
-from avoidd.config import FilesSourceConfig, SourceConfig, SyntheticSourceConfig
+from avoidd.config import (
+    FilesSourceConfig,
+    SimSourceConfig,
+    SourceConfig,
+    SyntheticSourceConfig,
+)
+from avoidd.errors import SourceError
 from avoidd.sources.base import FrameSource
 from avoidd.sources.files import open_files
 from avoidd.sources.synthetic import SyntheticSource
@@ -42,4 +48,9 @@ def open_source(
         return SyntheticSource(config, rig, paced)
     if isinstance(config, FilesSourceConfig):
         return open_files(config.path, config.fps, paced, config.loop)
+    if isinstance(config, SimSourceConfig):
+        raise SourceError(
+            f"head '{head}': a sim source renders the world from the autopilot's pose; only "
+            "`avoidd run` (with an autopilot on the link) opens it; give --input to read files"
+        )
     return V4l2Source(config, head)
