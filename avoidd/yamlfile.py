@@ -6,6 +6,7 @@ import difflib
 import re
 import types
 import typing
+from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any, TypeVar
@@ -159,7 +160,7 @@ def _read_text(path: Path) -> str:
         ) from None
 
 
-def load_yaml(path: Path) -> YamlDocument:
+def load_yaml(path: Path, prepare: Callable[[str], str] | None = None) -> YamlDocument:
     """Read a YAML file, rejecting syntax errors, several documents and duplicate keys.
 
     Files over ``MAX_FILE_BYTES``, bytes that are not UTF-8, nesting deeper than
@@ -168,6 +169,8 @@ def load_yaml(path: Path) -> YamlDocument:
 
     Args:
         path: The file to read.
+        prepare: Rewrites the text before parsing, keeping its lines (another tool's header
+            that YAML parsers reject, such as OpenCV's ``%YAML:1.0``).
 
     Returns:
         The document with its node tree.
@@ -176,6 +179,8 @@ def load_yaml(path: Path) -> YamlDocument:
         ConfigError: The file cannot be read or is not valid YAML.
     """
     text = _read_text(path)
+    if prepare is not None:
+        text = prepare(text)
     loader = _BoundedLoader(text, path)
     try:
         root = loader.get_single_node()

@@ -258,3 +258,27 @@ def test_numbers_with_an_exponent_and_no_dot_are_numbers(
     path.write_text(text)
     code, _ = _check(path, capsys)
     assert code == 0
+
+
+@pytest.mark.timeout(60)  # a hang guard, as above
+def test_a_euroc_sensor_file_gets_the_same_yaml_limits(tmp_path: Path) -> None:
+    """import-calibration reads EuRoC's YAML through the bounded loader too."""
+    bomb = tmp_path / "sensor.yaml"
+    bomb.write_text("%YAML:1.0\n" + _bomb())
+    other = tmp_path / "cam1.yaml"
+    other.write_bytes(b"%YAML:1.0\ncamera_model: \xff\n")
+    for first, second, fragments in (
+        (bomb, bomb, (f"{bomb}:", "more than 100000 values")),
+        (other, other, (f"{other}:2:", "not UTF-8")),
+    ):
+        result = subprocess.run(
+            [sys.executable, "-m", "avoidd", "import-calibration", "euroc", str(first),
+             str(second), "--out", str(tmp_path / "out.yaml")],
+            capture_output=True,
+            text=True,
+            timeout=50,
+            cwd=REPO,
+            check=False,
+        )  # fmt: skip
+        assert result.returncode == 2, result.stderr
+        _one_line(result.stderr.splitlines(), *fragments)

@@ -8,10 +8,10 @@ from pathlib import Path
 
 import numpy as np
 import numpy.typing as npt
-import yaml
 
 from avoidd.errors import ConfigError
 from avoidd.vision.calibration import RectifiedModel, StereoModel
+from avoidd.yamlfile import load_yaml
 
 
 @dataclass(frozen=True)
@@ -106,21 +106,18 @@ class _EurocCamera:
 
 
 def _read_euroc(path: Path) -> _EurocCamera:
+    # OpenCV writes a "%YAML:1.0" directive that YAML parsers reject; it carries nothing (the
+    # line stays, empty, so that errors name the right line). The bounded loader refuses huge,
+    # non-UTF-8 or alias-bomb files as it does configurations.
+    doc = load_yaml(path, lambda text: re.sub(r"^%YAML:[^\n]*", "", text)).data
     try:
-        text = path.read_text(encoding="utf-8")
-    except OSError as exc:
-        raise ConfigError([f"{path}: cannot read ({exc.strerror})"]) from exc
-    # OpenCV writes a "%YAML:1.0" directive that YAML parsers reject; it carries nothing.
-    text = re.sub(r"^%YAML:[^\n]*\n", "", text)
-    try:
-        doc = yaml.safe_load(text)
         model = doc["camera_model"]
         distortion = doc["distortion_model"]
         fu, fv, cu, cv = (float(v) for v in doc["intrinsics"])
         coefficients = [float(v) for v in doc["distortion_coefficients"]]
         width, height = (int(v) for v in doc["resolution"])
         transform = np.asarray(doc["T_BS"]["data"], dtype=np.float64).reshape(4, 4)
-    except (yaml.YAMLError, KeyError, TypeError, ValueError) as exc:
+    except (KeyError, TypeError, ValueError) as exc:
         raise ConfigError([f"{path}: not a EuRoC camera sensor.yaml ({exc})"]) from exc
     if model != "pinhole" or distortion != "radial-tangential" or len(coefficients) != 4:
         raise ConfigError(
