@@ -699,7 +699,7 @@ def _empty_video(tmp_path: Path) -> Path:
     [
         (_empty_folder, "rec: no images in left/"),
         (_unequal, "rec: left/ has 3 images, right/ has 2; pairs are matched by sorted name"),
-        (_first_corrupt, "0000.png: unreadable image; frame 0 dropped"),
+        (_first_corrupt, "0000.png: truncated image (no end marker); frame 0 dropped"),
         (_garbage_csv, "frames.csv"),
         (_empty_video, "flight.avi: "),
     ],
@@ -768,14 +768,14 @@ FILES_CASES = [
     FilesCase(
         "corrupt-images-ridden-out",
         _corrupt_some,
-        r"0012\.png: unreadable image; frame 12 dropped",
+        r"0012\.png: truncated image \(no end marker\); frame 12 dropped",
         None,
         max_age_ms=1500,
     ),
     FilesCase(
         "corrupt-images-from-frame-12",
         _corrupt_rest,
-        r"0012\.png: unreadable image; frame 12 dropped",
+        r"0012\.png: truncated image \(no end marker\); frame 12 dropped",
         r"^avoidd: front camera lost$",
     ),
     FilesCase(

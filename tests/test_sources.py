@@ -362,3 +362,26 @@ def test_frames_csv_position_errors_name_the_row(tmp_path: Path, cell: str, mess
     rows = ["t_capture_ns,north_m", f"1,{cell}"]
     with pytest.raises(SourceError, match=message):
         FolderSource(make_folder(tmp_path, 1, rows), None, paced=False, loop=False)
+
+
+@pytest.mark.parametrize("suffix", [".png", ".jpg"])
+def test_a_truncated_image_is_dropped_before_the_codec_prints_anything(
+    tmp_path: Path, suffix: str, capfd: pytest.CaptureFixture[str]
+) -> None:
+    rng = np.random.default_rng(4)
+    for side in ("left", "right"):
+        (tmp_path / side).mkdir()
+        for index in range(3):
+            image = rng.integers(0, 255, (48, 64), dtype=np.uint8)
+            cv2.imwrite(str(tmp_path / side / f"{index:03d}{suffix}"), image)
+    cut = tmp_path / "left" / f"001{suffix}"
+    whole = cut.read_bytes()
+    cut.write_bytes(whole[: len(whole) // 2])
+    source = open_files(tmp_path, None, paced=False, loop=False)
+    assert source.read().seq == 0
+    with pytest.raises(BrokenFrame, match=r"001.*truncated image"):
+        source.read()
+    assert source.read().seq == 2  # the next pair reads on
+    # libpng and libjpeg write to the process's stderr themselves: nothing reached it.
+    captured = capfd.readouterr()
+    assert "libpng" not in captured.err and "JPEG" not in captured.err, captured.err

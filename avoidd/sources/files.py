@@ -243,11 +243,7 @@ class FolderSource:
                 raise BrokenFrame(
                     f"{path}: missing (was the recording moved or deleted?); frame {seq} dropped"
                 )
-        left = cv2.imread(str(pair.left), cv2.IMREAD_UNCHANGED)
-        right = cv2.imread(str(pair.right), cv2.IMREAD_UNCHANGED)
-        if left is None or right is None:
-            bad = pair.left if left is None else pair.right
-            raise BrokenFrame(f"{bad}: unreadable image; frame {seq} dropped")
+        left, right = read_image(pair.left, seq), read_image(pair.right, seq)
         return StereoFrame(
             seq,
             t_capture_ns,
@@ -260,6 +256,34 @@ class FolderSource:
 
     def close(self) -> None:
         """Nothing to release."""
+
+
+_PNG_END = b"IEND\xaeB`\x82"
+_JPEG_END = b"\xff\xd9"
+
+
+def read_image(path: Path, seq: int) -> np.ndarray:
+    """One recorded image, as stored (any depth and channels).
+
+    A PNG or JPEG file cut short (a copy or a recording interrupted) is refused before it is
+    decoded: libpng and libjpeg report such files on stderr themselves, line after line, past
+    every logging setting.
+
+    Raises:
+        BrokenFrame: The file is truncated or does not decode.
+    """
+    try:
+        data = path.read_bytes()
+    except OSError as exc:
+        raise BrokenFrame(f"{path}: cannot read ({exc.strerror}); frame {seq} dropped") from exc
+    suffix = path.suffix.lower()
+    ends = {".png": _PNG_END, ".jpg": _JPEG_END, ".jpeg": _JPEG_END}.get(suffix)
+    if ends is not None and not data.rstrip(b"\0").endswith(ends):
+        raise BrokenFrame(f"{path}: truncated image (no end marker); frame {seq} dropped")
+    image = cv2.imdecode(np.frombuffer(data, np.uint8), cv2.IMREAD_UNCHANGED)
+    if image is None:
+        raise BrokenFrame(f"{path}: unreadable image; frame {seq} dropped")
+    return np.asarray(image)
 
 
 def _as_uint8(image: np.ndarray, path: Path) -> Image:
