@@ -54,9 +54,11 @@ def test_one_stale_head_among_fresh_ones_is_critical() -> None:
     assert mav_state(frozenset()) == mav.MAV_STATE_ACTIVE
 
 
-def _report(stale_at: list[bool], step_ms: int = 50) -> list[tuple[int, bool]]:
+def _report(
+    stale_at: list[bool], step_ms: int = 50, enter_hold_ns: int | None = None
+) -> list[tuple[int, bool]]:
     """Feed one head's raw freshness every ``step_ms``; the changes reported, with their step."""
-    state = Reported()
+    state = Reported() if enter_hold_ns is None else Reported(enter_hold_ns=enter_hold_ns)
     changes = []
     for step, stale in enumerate(stale_at):
         change = state.update(stale, STARTED_NS + step * step_ms * MS)
@@ -80,6 +82,19 @@ def test_flapping_under_load_is_one_episode() -> None:
     changes = _report(pattern + [False] * 60)
     assert [change for _, change in changes] == [True, False]
     assert changes[1][0] == len(pattern) - 10 + 40  # 2 s after the last stale sample
+
+
+def test_the_heartbeat_state_goes_critical_at_once_and_does_not_flap() -> None:
+    # The HEARTBEAT's own state (no hold on the way in): CRITICAL with the first stale sample,
+    # ACTIVE after 2 s of fresh data; a 300 ms miss is one CRITICAL spell of 2.3 s, and
+    # flapping under load is one episode, as for the announcements.
+    assert _report([False] * 10 + [True] * 6 + [False] * 50, enter_hold_ns=0) == [
+        (10, True),
+        (56, False),
+    ]
+    pattern = ([True] * 12 + [False] * 10) * 9
+    changes = _report(pattern + [False] * 60, enter_hold_ns=0)
+    assert changes == [(0, True), (len(pattern) - 10 + 40, False)]
 
 
 def test_the_reason_names_where_the_time_went() -> None:

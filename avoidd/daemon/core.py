@@ -114,6 +114,7 @@ class Daemon:
         self.vehicle = Vehicle(self.link, mavlink, self.announce)
         self._max_age_ns = config.pipeline.max_age_ms * 1_000_000
         self._reported: dict[str, health.Reported] = {}
+        self._beat: dict[str, health.Reported] = {}
         self._heartbeat_state = mav.MAV_STATE_BOOT
         self._started_ns = 0
         self.debug_server: DebugServer | None = None
@@ -313,26 +314,17 @@ class Daemon:
             self.link.send(self.codec.heartbeat(health.mav_state(self.heartbeat_stale())))
             await asyncio.sleep(period_s)
 
-    def reported_stale(self) -> frozenset[str] | None:
-        """Heads reported stale (with hysteresis, see :class:`.health.Reported`), None at boot."""
-        if self._stale_heads(time.monotonic_ns()) is None:
-            return None
-        return frozenset(name for name, state in self._reported.items() if state.stale)
-
     def heartbeat_stale(self) -> frozenset[str] | None:
-        """Heads the HEARTBEAT counts as stale: too old right now, or still reported stale.
+        """Heads the HEARTBEAT counts as stale (None at boot).
 
         The HEARTBEAT says CRITICAL as soon as a head's data is too old (within ``max_age_ms``
-        of the last good frame), without the announcements' 0.5 s hold: a state is not read
-        aloud, and a short spell of CRITICAL is the safe side. It goes back to ACTIVE only
-        when the head is fresh and no longer reported stale (2 s of fresh data after a long
-        spell), so a head that keeps missing its deadline stays CRITICAL.
+        of the last good frame), without the announcements' 0.5 s hold, and ACTIVE again only
+        after 2 s of fresh data throughout: a head that keeps missing its deadline under load
+        stays CRITICAL instead of flapping (see :class:`.health.Reported`).
         """
-        now_stale = self._stale_heads(time.monotonic_ns())
-        if now_stale is None:
+        if self._stale_heads(time.monotonic_ns()) is None:
             return None
-        reported = frozenset(name for name, state in self._reported.items() if state.stale)
-        return reported | now_stale
+        return frozenset(name for name, state in self._beat.items() if state.stale)
 
     def _check_staleness(self) -> None:
         """Report heads that went stale or recovered (with hysteresis), saying why."""
@@ -340,6 +332,9 @@ class Daemon:
         stale = self._stale_heads(now_ns)
         if stale is None:
             return
+        for head in self.heads:
+            beat = self._beat.setdefault(head.name, health.Reported(enter_hold_ns=0))
+            beat.update(head.name in stale, now_ns)
         beat_before = self._heartbeat_state
         self._heartbeat_state = health.mav_state(self.heartbeat_stale())
         if self._heartbeat_state != beat_before:
@@ -363,10 +358,6 @@ class Daemon:
             else:
                 logger.warning("head '%s': data fresh again", name)
                 self.announce(mav.MAV_SEVERITY_NOTICE, f"avoidd: {name} recovered", f"fresh {name}")
-            state = health.mav_state(self.heartbeat_stale())
-            if state != self._heartbeat_state:
-                self._heartbeat_state = state
-                self.link.send(self.codec.heartbeat(state))
 
     async def _signing_loop(self) -> None:
         while True:

@@ -98,6 +98,9 @@ class Reported:
 
     stale: bool = False
     differs_since_ns: int | None = None
+    enter_hold_ns: int = ENTER_STALE_NS
+    """How long the data must be too old before it is reported stale (0 for the HEARTBEAT's
+    state: CRITICAL at once, only the way back is held)."""
 
     def update(self, stale_now: bool, now_ns: int) -> bool | None:
         """Take the head's freshness at ``now_ns``.
@@ -115,7 +118,7 @@ class Reported:
             return None
         if self.differs_since_ns is None:
             self.differs_since_ns = now_ns
-        hold_ns = ENTER_STALE_NS if stale_now else LEAVE_STALE_NS
+        hold_ns = self.enter_hold_ns if stale_now else LEAVE_STALE_NS
         if now_ns - self.differs_since_ns < hold_ns:
             return None
         self.stale = stale_now
