@@ -121,3 +121,9 @@ def test_a_recordings_attitude_is_used_for_the_ground(tmp_path: Path) -> None:
         finite_bins[attitude] = int(np.count_nonzero(np.isfinite(result.scan.distance_m)))
     assert finite_bins[True] == 0
     assert finite_bins[False] > 0
+
+
+def test_a_suite_without_ranged_scenes_still_prints_its_table() -> None:
+    # eval-perception --scenes 0 --edge-scenes N used to end in a StatisticsError.
+    text = SuiteSummary([]).format()
+    assert "no scene with an obstacle to range" in text and "false bins: 0" in text

@@ -371,11 +371,14 @@ class SuiteSummary:
                 f"{'' if error is None else f'{error:+.2f}':>7}  {notes}"
             )
         contact = [abs(c) for c in self.contact_errors_pct]
-        lines.append(
-            f"nearest distance |error|: median {statistics.median(self.errors_pct):.2f}%, "
-            f"p95 {self.percentile(95):.2f}%, max {max(self.errors_pct):.2f}% over "
-            f"{len(self.errors_pct)} scenes"
-        )
+        if self.errors_pct:
+            lines.append(
+                f"nearest distance |error|: median {statistics.median(self.errors_pct):.2f}%, "
+                f"p95 {self.percentile(95):.2f}%, max {max(self.errors_pct):.2f}% over "
+                f"{len(self.errors_pct)} scenes"
+            )
+        else:
+            lines.append("nearest distance |error|: no scene with an obstacle to range")
         lines.append(
             f"missed obstacles: {len(self.missed)}; false bins: {len(self.false_bins)} "
             f"in {len({r.name for r in self.results if r.false_bins})} of "
