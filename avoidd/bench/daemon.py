@@ -73,7 +73,14 @@ async def run_bench(config_path: Path, seconds: float) -> dict[str, Any]:
     task = asyncio.create_task(daemon.run())
     try:
         deadline = time.monotonic() + _FIRST_SCAN_TIMEOUT_S
-        while not listener.of_type("OBSTACLE_DISTANCE"):
+        max_cm = mavlink.obstacle_distance.max_distance_cm
+
+        def warmed_up() -> bool:
+            # The first scans can know no bin yet (the temporal filter confirms a reading over
+            # a few frames): the measurement starts with the first scan that knows one.
+            return any(min(m.distances) <= max_cm for m in listener.of_type("OBSTACLE_DISTANCE"))
+
+        while not warmed_up():
             if time.monotonic() > deadline or task.done():
                 raise RuntimeError(f"{config_path}: no OBSTACLE_DISTANCE within a minute")
             await asyncio.sleep(0.02)
@@ -95,7 +102,6 @@ async def run_bench(config_path: Path, seconds: float) -> dict[str, Any]:
         await asyncio.wait_for(task, timeout=15.0)
         transport.close()
     scans = listener.of_type("OBSTACLE_DISTANCE", start_s)
-    max_cm = mavlink.obstacle_distance.max_distance_cm
     with_obstacle = sum(1 for m in scans if min(m.distances) <= max_cm)
     states: dict[str, int] = {}
     for heartbeat in listener.of_type("HEARTBEAT", start_s):
