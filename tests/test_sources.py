@@ -77,7 +77,8 @@ def test_folder_layout_errors(tmp_path: Path) -> None:
 
 def test_unreadable_image_is_a_broken_frame_and_reading_goes_on(tmp_path: Path) -> None:
     folder = make_folder(tmp_path, 3)
-    (folder / "left" / "0001.png").write_bytes(b"not a png")
+    # Complete (it ends as a PNG does) but not an image at all.
+    (folder / "left" / "0001.png").write_bytes(b"not a png" + b"IEND\xaeB`\x82")
     source = FolderSource(folder, None, paced=False, loop=False)
     assert int(source.read().left[0, 0, 0]) == 0
     with pytest.raises(BrokenFrame, match=r"0001\.png: unreadable image"):
