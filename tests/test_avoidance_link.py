@@ -92,6 +92,17 @@ async def test_px4_prestreams_hold_setpoints_until_offboard(tmp_path: Path) -> N
         autopilot.mode = "OFFBOARD"
         assert await wait_for(lambda: daemon.avoidance.state != "prestream", 5)
         assert daemon.avoidance.state in {"moving", "dead end", "no path", "arrived", "stale"}
+        # The pilot switches back to Position mode: no prestream any more, nothing is sent
+        # after the cycle under way.
+        autopilot.mode = "POSCTL"
+        took_over = "pilot took over; waiting for a new goal"
+        assert await wait_for(lambda: daemon.avoidance.state == took_over, 5)
+        count = len(_setpoints(autopilot))
+        await asyncio.sleep(0.6)
+        assert len(_setpoints(autopilot)) <= count + 1
+        # A new goal from the ground station: prestream again, so OFFBOARD can be re-entered.
+        daemon.avoidance.set_goal(Goal(10.0, 5.0, 1.5, "GCS goal"))
+        assert await wait_for(lambda: daemon.avoidance.state == "prestream", 5)
     finally:
         await stop(daemon, task)
         await autopilot.stop()
