@@ -87,7 +87,8 @@ class Px4Run(ExternalRun):
         self.setpoints_after_release: int | None = None
         """Setpoints avoidd sent from one cycle after it saw Position mode until 2 s later."""
         self.estimator_s = 0.0
-        self.sitl: Px4Sitl | None = None
+        self.gcs: GroundStation | None = None
+        """The ground station of the run (what it heard stays readable after the run)."""
 
     async def run(self, port: int = ONBOARD_PORT) -> ExternalSummary:
         """Start PX4 and avoidd, fly the scenario, stop everything; the summary.
@@ -99,7 +100,6 @@ class Px4Run(ExternalRun):
             LinkError: PX4 did not start, or would not arm, take off or engage OFFBOARD.
         """
         sitl = Px4Sitl(self.binary_dir, extra_params=self.params)
-        self.sitl = sitl
         config = daemon_config(ONBOARD_PORT, self.scenario, self.mode == "planner")
         daemon = Daemon(
             config, {"front": Calibration(self.rig, None, Path("sim"))}, open_source=self._camera
@@ -109,6 +109,7 @@ class Px4Run(ExternalRun):
         sticks: asyncio.Task[None] | None = None
         try:
             gcs = await sitl.start(timeout_s=30.0)
+            self.gcs = gcs
             task = asyncio.create_task(daemon.run(), name="avoidd")
             sticks = asyncio.create_task(self._sticks(gcs), name="gcs-sticks")
             await self._fly_px4(gcs, sitl)
@@ -165,10 +166,11 @@ class Px4Run(ExternalRun):
         if not await gcs.arm(retry_s=60.0):
             raise LinkError("PX4 would not arm within 60 s")
         await self._take_off_px4(gcs)
-        # Take-off done: PX4 holds (LOITER). Not LOCAL_POSITION_NED's height: the estimator's
-        # origin sits up to 2 m off the ground here (its height drifts while it settles).
+        # Take-off done: PX4 holds (LOITER), or is near the height above home. Not
+        # LOCAL_POSITION_NED's height: the estimator's origin sits up to 2 m off the ground
+        # here (its height drifts while it settles).
         await self._wait_mode("TAKEOFF", 10.0)
-        await self._wait_mode("LOITER", 40.0)
+        await self._wait_climbed(gcs, self.goal[2] - 0.4, 40.0)
         assert self.daemon is not None
         self.home_up_m = self.daemon.vehicle.home_up_m or 0.0
         if self.mode == "planner":
@@ -180,6 +182,8 @@ class Px4Run(ExternalRun):
                 await self._watch(gcs, self.release_s, push=False, reset=False)
                 await self._release(gcs)
         else:
+            # PX4's merged obstacle map, as it streams it back (36 bins of 10 degrees).
+            await gcs.request_message_interval("OBSTACLE_DISTANCE", 5.0)
             if await gcs.set_mode("px4", "POSCTL") != mav.MAV_RESULT_ACCEPTED:
                 raise LinkError("PX4 refused Position mode")
             await self._wait_mode("POSCTL", 10.0)
@@ -216,6 +220,27 @@ class Px4Run(ExternalRun):
             await asyncio.sleep(1.0)
         said = [m.text for m in gcs.of_type("STATUSTEXT")][-5:]
         raise LinkError(f"PX4 refused to take off (MAV_RESULT {result}; it said {said})")
+
+    async def _wait_climbed(self, gcs: GroundStation, height_m: float, timeout_s: float) -> None:
+        """Until PX4 holds after take-off or is ``height_m`` above home."""
+        daemon = self.daemon
+        assert daemon is not None
+        deadline = time.monotonic() + timeout_s
+        height = math.nan
+        while time.monotonic() < deadline:
+            mode = daemon.vehicle.mode
+            if mode is not None and mode.name == "LOITER":
+                return
+            report = await gcs.next_message(
+                lambda m: m.get_type() == "GLOBAL_POSITION_INT" and gcs.from_autopilot(m), 1.0
+            )
+            if report is not None:
+                height = report.relative_alt / 1000.0
+                if height >= height_m:
+                    return
+        raise LinkError(
+            f"PX4 did not climb to {height_m:.1f} m in {timeout_s:.0f} s ({height:.1f})"
+        )
 
     async def _wait_mode(self, name: str, timeout_s: float) -> float:
         """Until avoidd's link decodes PX4's mode as ``name``; seconds waited."""
