@@ -8,17 +8,21 @@ run one PX4 at a time, and each waits about 35 s for PX4's estimator to settle.
 from __future__ import annotations
 
 import asyncio
+import contextlib
+import math
 import time
 from pathlib import Path
 from typing import Any
 
 import pytest
+from pymavlink import mavutil
 
 from avoidd.config.sim import load_scenario
 from avoidd.daemon import Daemon
 from avoidd.daemon.outputs import Outputs
 from avoidd.loading import load_all
 from avoidd.mavlink import codec as mav
+from avoidd.sim.gcs import GroundStation
 from avoidd.sim.px4 import Px4Sitl
 from avoidd.sim.px4_run import Px4Run
 from tests.helpers import synthetic_config, wait_for
@@ -195,3 +199,101 @@ async def test_px4_offboard_planner_flies_round_the_wall_and_yields_to_the_pilot
     assert not summary.collided
     assert run.offboard_s is not None
     assert run.setpoints_after_release == 0
+
+
+async def _sticks(gcs: GroundStation) -> None:
+    """Neutral sticks at 20 Hz, as a pilot's joystick (Position mode needs manual control)."""
+    while True:
+        gcs.send(gcs.codec.build("MANUAL_CONTROL", 1, 0, 0, 500, 0, 0))
+        await asyncio.sleep(0.05)
+
+
+def _px4_mode(gcs: GroundStation) -> str:
+    beat = gcs.of_type("HEARTBEAT")[-1]
+    return str(mavutil.interpret_px4_mode(beat.base_mode, beat.custom_mode))
+
+
+async def test_px4_leaves_offboard_when_avoidd_stops_and_a_restarted_avoidd_waits(
+    px4_sitl_dir: Path, tmp_path: Path
+) -> None:
+    """avoidd stopped in OFFBOARD: PX4 falls back to Position mode after COM_OF_LOSS_T (1 s).
+    avoidd started again only prestreams (PX4 holds in Position mode) until OFFBOARD is
+    entered again; then it flies."""
+    t0 = time.monotonic()
+    sitl = Px4Sitl(px4_sitl_dir)
+    gcs = await sitl.start()
+    sticks = asyncio.create_task(_sticks(gcs))
+    sections = {
+        "avoidance": {
+            "enabled": True,
+            "unknown": "free",
+            "goal": {"north_m": 10.0, "east_m": 0.0, "altitude_m": 3.0},
+        }
+    }
+    config, calibrations = load_all(
+        synthetic_config(
+            tmp_path,
+            sitl.onboard_connection,
+            source={"kind": "synthetic", "fps": 10, "seed": 3, "obstacles": []},
+            mavlink={"system_id": "auto"},
+            pipeline={"max_age_ms": 300, "log_interval_s": 5.0},
+            sections=sections,
+        )
+    )
+    daemon = Daemon(config, calibrations)
+    task: asyncio.Task[int] | None = asyncio.create_task(daemon.run())
+    try:
+        await sitl.wait_estimator(120.0)
+        assert await gcs.arm(retry_s=60.0)
+        nan = math.nan
+        assert await gcs.command(22, -1, 0, 0, nan, nan, nan, nan) == mav.MAV_RESULT_ACCEPTED
+        climbed = await gcs.next_message(
+            lambda m: m.get_type() == "GLOBAL_POSITION_INT" and m.relative_alt > 2000, 40.0
+        )
+        assert climbed is not None, "PX4 did not take off"
+        assert await wait_for(lambda: daemon.avoidance.state == "prestream", 20.0)
+        await asyncio.sleep(1.5)
+        assert await gcs.set_mode("px4", "OFFBOARD") == mav.MAV_RESULT_ACCEPTED
+        assert await wait_for(lambda: _px4_mode(gcs) == "OFFBOARD", 5.0)
+        assert await wait_for(lambda: daemon.avoidance.state not in {"prestream", "stale"}, 5.0)
+        await asyncio.sleep(3.0)  # avoidd flies
+        # avoidd stops: its setpoints end.
+        daemon.stop()
+        assert await asyncio.wait_for(task, 30.0) == 0
+        task = None
+        stopped_ns = time.monotonic_ns()
+        assert await wait_for(lambda: _px4_mode(gcs) != "OFFBOARD", 10.0)
+        fallback_s = (time.monotonic_ns() - stopped_ns) / 1e9
+        fallback_mode = _px4_mode(gcs)
+        # avoidd again: it hears PX4 armed outside OFFBOARD with its goal, and prestreams.
+        daemon = Daemon(config, calibrations)
+        task = asyncio.create_task(daemon.run())
+        assert await wait_for(lambda: daemon.avoidance.state == "prestream", 20.0)
+        since = time.monotonic_ns()
+        await asyncio.sleep(4.0)
+        modes = {_px4_mode(gcs)}
+        speeds = [math.hypot(m.vx, m.vy) for m in gcs.of_type("LOCAL_POSITION_NED", since)]
+        assert daemon.avoidance.state == "prestream"
+        prestreamed = daemon.avoidance.sent
+        # The pilot gives control back: OFFBOARD, and avoidd flies.
+        assert await gcs.set_mode("px4", "OFFBOARD") == mav.MAV_RESULT_ACCEPTED
+        assert await wait_for(lambda: _px4_mode(gcs) == "OFFBOARD", 5.0)
+        assert await wait_for(lambda: daemon.avoidance.state not in {"prestream", "stale"}, 5.0)
+        flying_state = daemon.avoidance.state
+    finally:
+        sticks.cancel()
+        if task is not None:
+            daemon.stop()
+            with contextlib.suppress(Exception):
+                await asyncio.wait_for(task, 30.0)
+        await sitl.stop()
+    print(
+        f"\nloss: PX4 left OFFBOARD {fallback_s:.2f} s after avoidd stopped, into "
+        f"{fallback_mode}; restarted avoidd prestreamed {prestreamed} setpoints while PX4 "
+        f"stayed in {sorted(modes)} at <= {max(speeds):.2f} m/s; after OFFBOARD: "
+        f"{flying_state}; test {time.monotonic() - t0:.0f} s"
+    )
+    assert fallback_mode == "POSCTL"
+    assert fallback_s <= 3.0
+    assert modes == {"POSCTL"}
+    assert max(speeds) < 0.6
