@@ -22,6 +22,7 @@ from avoidd.daemon import Daemon
 from avoidd.daemon.outputs import Outputs
 from avoidd.loading import load_all
 from avoidd.mavlink import codec as mav
+from avoidd.planner.core import Goal
 from avoidd.sim.gcs import GroundStation
 from avoidd.sim.px4 import Px4Sitl
 from avoidd.sim.px4_run import Px4Run
@@ -208,6 +209,10 @@ async def _sticks(gcs: GroundStation) -> None:
         await asyncio.sleep(0.05)
 
 
+def _state(daemon: Daemon) -> str | None:
+    return None if daemon.avoidance is None else daemon.avoidance.state
+
+
 def _px4_mode(gcs: GroundStation) -> str:
     beat = gcs.of_type("HEARTBEAT")[-1]
     return str(mavutil.interpret_px4_mode(beat.base_mode, beat.custom_mode))
@@ -217,8 +222,8 @@ async def test_px4_leaves_offboard_when_avoidd_stops_and_a_restarted_avoidd_wait
     px4_sitl_dir: Path, tmp_path: Path
 ) -> None:
     """avoidd stopped in OFFBOARD: PX4 falls back to Position mode after COM_OF_LOSS_T (1 s).
-    avoidd started again only prestreams (PX4 holds in Position mode) until OFFBOARD is
-    entered again; then it flies."""
+    avoidd started again stays silent (PX4 holds in Position mode) until it gets a new goal and
+    OFFBOARD is entered again; then it flies."""
     t0 = time.monotonic()
     sitl = Px4Sitl(px4_sitl_dir)
     gcs = await sitl.start()
@@ -265,21 +270,34 @@ async def test_px4_leaves_offboard_when_avoidd_stops_and_a_restarted_avoidd_wait
         assert await wait_for(lambda: _px4_mode(gcs) != "OFFBOARD", 10.0)
         fallback_s = (time.monotonic_ns() - stopped_ns) / 1e9
         fallback_mode = _px4_mode(gcs)
-        # avoidd again: it hears PX4 armed outside OFFBOARD with its goal, and prestreams.
+        # avoidd again: PX4 flies armed in Position mode; avoidd stays silent. (PX4 would go
+        # back to OFFBOARD by itself as soon as setpoints came back: its failsafe clears.)
         daemon = Daemon(config, calibrations)
         task = asyncio.create_task(daemon.run())
-        assert await wait_for(lambda: daemon.avoidance.state == "prestream", 20.0)
+        flies = "pilot flies; waiting for a new goal"
+        assert await wait_for(lambda: _state(daemon) == flies, 20.0)
         since = time.monotonic_ns()
         await asyncio.sleep(4.0)
-        modes = {_px4_mode(gcs)}
+        modes = {
+            str(mavutil.interpret_px4_mode(m.base_mode, m.custom_mode))
+            for m in gcs.of_type("HEARTBEAT", since)
+        }
         speeds = [math.hypot(m.vx, m.vy) for m in gcs.of_type("LOCAL_POSITION_NED", since)]
-        assert daemon.avoidance.state == "prestream"
+        assert _state(daemon) == flies
+        assert daemon.avoidance is not None and daemon.avoidance.sent == 0
+        # The pilot hands over again: Position mode (ends PX4's pending return to OFFBOARD),
+        # a new goal (avoidd prestreams), OFFBOARD, and avoidd flies.
+        assert await gcs.set_mode("px4", "POSCTL") == mav.MAV_RESULT_ACCEPTED
+        daemon.avoidance.set_goal(Goal(12.0, 0.0, 3.0, "GCS goal"))
+        assert await wait_for(lambda: _state(daemon) == "prestream", 5.0)
+        await asyncio.sleep(1.5)
+        prestream_modes = {_px4_mode(gcs)}
         prestreamed = daemon.avoidance.sent
-        # The pilot gives control back: OFFBOARD, and avoidd flies.
         assert await gcs.set_mode("px4", "OFFBOARD") == mav.MAV_RESULT_ACCEPTED
         assert await wait_for(lambda: _px4_mode(gcs) == "OFFBOARD", 5.0)
-        assert await wait_for(lambda: daemon.avoidance.state not in {"prestream", "stale"}, 5.0)
-        flying_state = daemon.avoidance.state
+        planning = {"moving", "dead end", "no path", "arrived"}
+        assert await wait_for(lambda: _state(daemon) in planning, 10.0), _state(daemon)
+        flying_state = _state(daemon)
     finally:
         sticks.cancel()
         if task is not None:
@@ -289,11 +307,12 @@ async def test_px4_leaves_offboard_when_avoidd_stops_and_a_restarted_avoidd_wait
         await sitl.stop()
     print(
         f"\nloss: PX4 left OFFBOARD {fallback_s:.2f} s after avoidd stopped, into "
-        f"{fallback_mode}; restarted avoidd prestreamed {prestreamed} setpoints while PX4 "
-        f"stayed in {sorted(modes)} at <= {max(speeds):.2f} m/s; after OFFBOARD: "
-        f"{flying_state}; test {time.monotonic() - t0:.0f} s"
+        f"{fallback_mode}; restarted avoidd silent 4 s, PX4 in {sorted(modes)} at <= "
+        f"{max(speeds):.2f} m/s; new goal: {prestreamed} prestream setpoints, PX4 in "
+        f"{sorted(prestream_modes)}; after OFFBOARD: {flying_state}; "
+        f"test {time.monotonic() - t0:.0f} s"
     )
     assert fallback_mode == "POSCTL"
     assert fallback_s <= 3.0
-    assert modes == {"POSCTL"}
+    assert modes == {"POSCTL"} and prestream_modes == {"POSCTL"}
     assert max(speeds) < 0.6

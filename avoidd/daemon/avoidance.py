@@ -9,7 +9,9 @@ mode, autopilot) and whether perception is fresh, applies the gate
   no goal): the next cycle after a mode change away sends nothing;
 - PX4 armed with a goal outside OFFBOARD: hold-here setpoints, so it can be switched to
   OFFBOARD (it needs a stream above 2 Hz first); but once it leaves OFFBOARD while armed (the
-  pilot took over, or PX4's offboard-loss failsafe), nothing until a new goal or a new arming;
+  pilot took over, or PX4's offboard-loss failsafe), or when avoidd starts while it is armed in
+  another mode, nothing until a new goal or a new arming (PX4 goes back to OFFBOARD by itself
+  when setpoints return after its offboard-loss failsafe);
 - perception stale, or no local position: an explicit zero-velocity hold (ArduPilot drops a
   velocity command after 3 s, so silence is no hold);
 - otherwise the planner's decision.
@@ -55,7 +57,7 @@ _REASONS = {
     "goal": "no goal",
     "mode": "mode does not take setpoints",
     "enabled": "avoidance off",
-    "taken_over": "pilot took over; waiting for a new goal",
+    "taken_over": "pilot flies; waiting for a new goal",
 }
 
 
@@ -104,6 +106,7 @@ class AvoidanceLoop:
         self.last_decision: Decision | None = None
         self._switched_off_ns = -(10**18)
         self._was_setpoint_mode = False
+        self._mode_seen = False
         self.taken_over = False
         """Armed, the vehicle left the setpoint mode since the goal was set (no prestream)."""
         self.sent = 0
@@ -113,6 +116,12 @@ class AvoidanceLoop:
         mode = self.vehicle.mode
         armed = mode is not None and mode.armed
         setpoint_mode = mode is not None and mode.guided
+        if mode is not None and not self._mode_seen:
+            # Started (or restarted) while the vehicle flies in another mode: someone else
+            # flies it. PX4 returns to OFFBOARD by itself when setpoints come back after its
+            # offboard-loss failsafe, so a prestream here would take control (seen).
+            self._mode_seen = True
+            self.taken_over = armed and not setpoint_mode
         if not armed:
             self.taken_over = False
         elif self._was_setpoint_mode and not setpoint_mode and self.vehicle.link_up:
