@@ -81,9 +81,20 @@ async def test_ardupilot_guided_gets_velocity_setpoints_and_loiter_gets_none(
 
 
 async def test_px4_prestreams_hold_setpoints_until_offboard(tmp_path: Path) -> None:
+    # Armed in Position mode before avoidd starts: someone else flies it, avoidd is silent.
     autopilot = MockAutopilot(flavour="px4", system_id=7, mode="POSCTL", armed=True)
     daemon, task = await _pair(tmp_path, autopilot)
     try:
+        flies = "pilot flies; waiting for a new goal"
+        assert await wait_for(
+            lambda: daemon.avoidance is not None and daemon.avoidance.state == flies, 15.0
+        )
+        await asyncio.sleep(0.5)
+        assert not _setpoints(autopilot)
+        # A new arming: prestream.
+        autopilot.armed = False
+        assert await wait_for(lambda: daemon.avoidance.state == "disarmed", 5.0)
+        autopilot.armed = True
         assert await wait_for(lambda: len(_setpoints(autopilot)) >= 30, 15.0)
         assert daemon.avoidance.state == "prestream"
         # Above 2 Hz (the stream is at 20 Hz), and every one holds still.
@@ -92,6 +103,16 @@ async def test_px4_prestreams_hold_setpoints_until_offboard(tmp_path: Path) -> N
         autopilot.mode = "OFFBOARD"
         assert await wait_for(lambda: daemon.avoidance.state != "prestream", 5)
         assert daemon.avoidance.state in {"moving", "dead end", "no path", "arrived", "stale"}
+        # The pilot switches back to Position mode: no prestream any more, nothing is sent
+        # after the cycle under way.
+        autopilot.mode = "POSCTL"
+        assert await wait_for(lambda: daemon.avoidance.state == flies, 5)
+        count = len(_setpoints(autopilot))
+        await asyncio.sleep(0.6)
+        assert len(_setpoints(autopilot)) <= count + 1
+        # A new goal from the ground station: prestream again, so OFFBOARD can be re-entered.
+        daemon.avoidance.set_goal(Goal(10.0, 5.0, 1.5, "GCS goal"))
+        assert await wait_for(lambda: daemon.avoidance.state == "prestream", 5)
     finally:
         await stop(daemon, task)
         await autopilot.stop()

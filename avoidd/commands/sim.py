@@ -1,4 +1,4 @@
-"""``avoidd sim run|batch|ardupilot``: closed-loop scenarios in the simulator or a real SITL."""
+"""``avoidd sim run|batch|ardupilot|px4``: closed-loop scenarios in the simulator or a real SITL."""
 
 from __future__ import annotations
 
@@ -72,6 +72,25 @@ def configure(name: str, parser: argparse.ArgumentParser) -> None:
     sitl.add_argument("--avoid-margin", type=float, help="ArduPilot's AVOID_MARGIN, metres")
     sitl.add_argument("--json", type=Path, help="write the summary and every sample as JSON")
     sitl.set_defaults(handler=run_ardupilot)
+    px4 = actions.add_parser(
+        "px4", help="fly one scenario with a real PX4 SITL (SIH) and avoidd's daemon"
+    )
+    px4.add_argument("scenario", type=Path, help="scenario file (sitl/px4/*.yaml)")
+    px4.add_argument(
+        "--binary-dir",
+        type=Path,
+        default=Path(os.environ.get("AVOIDD_PX4_SITL_DIR", "../shared/sitl/px4")),
+        help="folder with bin/px4 and etc/ (default: $AVOIDD_PX4_SITL_DIR)",
+    )
+    px4.add_argument(
+        "--push",
+        action="store_true",
+        help="planner off: full forward stick in Position mode; PX4's collision prevention "
+        "must stop the vehicle on avoidd's data",
+    )
+    px4.add_argument("--cp-dist", type=float, help="PX4's CP_DIST, metres")
+    px4.add_argument("--json", type=Path, help="write the summary and every sample as JSON")
+    px4.set_defaults(handler=run_px4)
 
 
 def run_one(args: argparse.Namespace) -> int:
@@ -99,11 +118,11 @@ def _free_udp_port() -> int:
         return int(probe.getsockname()[1])
 
 
-def _report(summary: Any, out_json: Path | None) -> int:
+def _report(summary: Any, out_json: Path | None, report: dict[str, Any] | None = None) -> int:
     """Print an external or real-time run's summary (and write it with its samples)."""
     import dataclasses
 
-    report = summary.as_json()
+    report = summary.as_json() if report is None else report
     print(json.dumps(report, indent=2))
     if out_json is not None:
         out_json.parent.mkdir(parents=True, exist_ok=True)
@@ -147,6 +166,29 @@ def run_ardupilot(args: argparse.Namespace) -> int:
     )
     summary = asyncio.run(run.run(_free_udp_port()))
     return _report(summary, args.json)
+
+
+def run_px4(args: argparse.Namespace) -> int:
+    """Fly one scenario against PX4 SITL; exit 0 when it passes its criteria."""
+    import asyncio
+
+    from avoidd.config.sim import load_scenario
+    from avoidd.sim.px4_run import Px4Run
+
+    scenario = load_scenario(args.scenario)
+    run = Px4Run(
+        scenario,
+        args.binary_dir,
+        mode="push" if args.push else "planner",
+        cp_dist_m=args.cp_dist,
+    )
+    summary = asyncio.run(run.run())
+    report = summary.as_json() | {
+        "estimator_s": round(run.estimator_s, 1),
+        "offboard_s": None if run.offboard_s is None else round(run.offboard_s, 2),
+        "setpoints_after_release": run.setpoints_after_release,
+    }
+    return _report(summary, args.json, report)
 
 
 @dataclass(frozen=True)

@@ -8,7 +8,10 @@ mode, autopilot) and whether perception is fresh, applies the gate
 - nothing while the pilot or the autopilot flies (mode without setpoints, disarmed, link down,
   no goal): the next cycle after a mode change away sends nothing;
 - PX4 armed with a goal outside OFFBOARD: hold-here setpoints, so it can be switched to
-  OFFBOARD (it needs a stream above 2 Hz first);
+  OFFBOARD (it needs a stream above 2 Hz first); but once it leaves OFFBOARD while armed (the
+  pilot took over, or PX4's offboard-loss failsafe), or when avoidd starts while it is armed in
+  another mode, nothing until a new goal or a new arming (PX4 goes back to OFFBOARD by itself
+  when setpoints return after its offboard-loss failsafe);
 - perception stale, or no local position: an explicit zero-velocity hold (ArduPilot drops a
   velocity command after 3 s, so silence is no hold);
 - otherwise the planner's decision.
@@ -54,6 +57,7 @@ _REASONS = {
     "goal": "no goal",
     "mode": "mode does not take setpoints",
     "enabled": "avoidance off",
+    "taken_over": "pilot flies; waiting for a new goal",
 }
 
 
@@ -101,11 +105,28 @@ class AvoidanceLoop:
         """What the loop did last cycle: a gate reason or the planner's state."""
         self.last_decision: Decision | None = None
         self._switched_off_ns = -(10**18)
+        self._was_setpoint_mode = False
+        self._mode_seen = False
+        self.taken_over = False
+        """Armed, the vehicle left the setpoint mode since the goal was set (no prestream)."""
         self.sent = 0
 
     def facts(self, fresh: bool) -> Facts:
         """What the link and perception say this cycle."""
         mode = self.vehicle.mode
+        armed = mode is not None and mode.armed
+        setpoint_mode = mode is not None and mode.guided
+        if mode is not None and not self._mode_seen:
+            # Started (or restarted) while the vehicle flies in another mode: someone else
+            # flies it. PX4 returns to OFFBOARD by itself when setpoints come back after its
+            # offboard-loss failsafe, so a prestream here would take control (seen).
+            self._mode_seen = True
+            self.taken_over = armed and not setpoint_mode
+        if not armed:
+            self.taken_over = False
+        elif self._was_setpoint_mode and not setpoint_mode and self.vehicle.link_up:
+            self.taken_over = True
+        self._was_setpoint_mode = setpoint_mode and armed
         return Facts(
             enabled=self.config.enabled,
             link_up=self.vehicle.link_up,
@@ -115,6 +136,7 @@ class AvoidanceLoop:
             goal=self.goal is not None,
             fresh=fresh,
             prestream=self.config.px4_prestream,
+            taken_over=self.taken_over,
         )
 
     def _pose(self, t_ns: int, now_ns: int) -> Pose | None:
@@ -259,6 +281,8 @@ class AvoidanceLoop:
             value = facts.link_up if name == "link" else getattr(facts, name)
             if not value:
                 return _REASONS[name]
+        if facts.taken_over and facts.px4:
+            return _REASONS["taken_over"]
         return _REASONS["mode"]
 
     def _setpoint(self, now_ns: int, decision: Decision) -> Message:
@@ -410,6 +434,7 @@ class AvoidanceLoop:
     def set_goal(self, goal: Goal) -> None:
         """Fly to a new goal from now on (the obstacle memory is kept)."""
         self.goal = goal
+        self.taken_over = False
         self.planner.reset()
         logger.info(
             "avoidance: new %s: %.1f m north, %.1f m east, %.1f m up",

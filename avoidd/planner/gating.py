@@ -16,7 +16,8 @@ class Gate(Enum):
     """Send nothing: avoidance off, link down, disarmed, no goal, or a mode that does not
     take setpoints (the pilot or the autopilot flies)."""
     PRESTREAM = "prestream"
-    """PX4 not yet in OFFBOARD: stream hold-here setpoints so that it can be switched."""
+    """PX4 not yet in OFFBOARD: stream hold-here setpoints so that it can be switched (not
+    after the pilot switched away from OFFBOARD: that is silent until a new goal)."""
     HOLD = "hold"
     """In a setpoint mode but perception is stale: an explicit zero velocity (ArduPilot drops
     a velocity command after 3 s, so silence is no hold)."""
@@ -37,6 +38,8 @@ class Facts:
         goal: A goal is active.
         fresh: Perception is fresh.
         prestream: ``avoidance.px4_prestream``.
+        taken_over: The vehicle left the setpoint mode while armed since the goal was set (the
+            pilot took over): no prestream until a new goal or a new arming.
     """
 
     enabled: bool
@@ -47,6 +50,7 @@ class Facts:
     goal: bool
     fresh: bool
     prestream: bool = True
+    taken_over: bool = False
 
 
 def gate(facts: Facts) -> Gate:
@@ -54,5 +58,6 @@ def gate(facts: Facts) -> Gate:
     if not (facts.enabled and facts.link_up and facts.armed and facts.goal):
         return Gate.SILENT
     if not facts.setpoint_mode:
-        return Gate.PRESTREAM if facts.px4 and facts.prestream else Gate.SILENT
+        prestream = facts.px4 and facts.prestream and not facts.taken_over
+        return Gate.PRESTREAM if prestream else Gate.SILENT
     return Gate.PLAN if facts.fresh else Gate.HOLD

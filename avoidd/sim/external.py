@@ -210,6 +210,9 @@ class ExternalRun:
         """The world position of the autopilot's local origin (the scenario's start)."""
         self.rig: RectifiedRig = RIGS[scenario.resolution]
         self.radius_m = scenario.avoidance.vehicle_radius_m
+        self.home_up_m = 0.0
+        """Height of the ground under the start above the autopilot's local origin (PX4's
+        origin can sit up to 2 m off the ground: its height drifts while it settles)."""
         self.daemon: Daemon | None = None
         self.summary = ExternalSummary(scenario.name, mode)
         self._t0_ns = 0
@@ -368,7 +371,7 @@ class ExternalRun:
     def _measure(self, position: Any) -> Sample:
         north_m = float(position.x) + self.offset_ne_m[0]
         east_m = float(position.y) + self.offset_ne_m[1]
-        altitude_m = -float(position.z)
+        altitude_m = -float(position.z) - self.home_up_m
         edge_m = self.world.clearance_m(north_m, east_m, altitude_m) - self.radius_m
         sample = Sample(
             (time.monotonic_ns() - self._t0_ns) / 1e9,

@@ -93,7 +93,7 @@ class RealtimeRun(ExternalRun):
 
     async def run(self, port: int) -> ExternalSummary:
         """Run the scenario for its duration; the summary (judged by its criteria)."""
-        config = daemon_config(port, self.scenario, planner=True, goal=self.goal)
+        config = daemon_config(port, self.scenario, planner=True)
         daemon = Daemon(
             config, {"front": Calibration(self.rig, None, Path("sim"))}, open_source=self._open
         )
@@ -103,6 +103,10 @@ class RealtimeRun(ExternalRun):
         task = asyncio.create_task(daemon.run(), name="avoidd")
         try:
             await self._wait_link(10.0)
+            # The goal comes over MAVLink once the link is up, as a ground station gives it: a
+            # goal avoidd already has when it first sees PX4 armed in another mode does not
+            # prestream (someone else flies it; see the avoidance loop).
+            self._send_goal(*self.goal)
             self._t0_ns = time.monotonic_ns()
             autopilot.on_step = self._on_step
             await self._play()

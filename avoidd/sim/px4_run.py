@@ -1,0 +1,316 @@
+"""A scenario flown by a real PX4 SITL (SIH physics), with avoidd's camera rendered from its pose.
+
+The same flight as :class:`~avoidd.sim.external.ExternalRun` does with ArduPilot, the PX4 way.
+A ground station on PX4's GCS link keeps neutral sticks (MANUAL_CONTROL at 20 Hz, as a pilot's
+joystick: PX4's Position mode needs manual control), waits for the estimator, arms and takes off
+(``MAV_CMD_NAV_TAKEOFF`` to ``MIS_TAKEOFF_ALT``), then either
+
+- ``planner``: gives avoidd the goal (``DO_REPOSITION`` addressed to avoidd's component 196:
+  PX4 routes it to the onboard link and avoidd's COMMAND_ACK back), waits for avoidd's
+  hold-here prestream, switches to OFFBOARD and lets avoidd fly there; at the end it switches
+  to Position mode (the pilot takes over) and counts the setpoints avoidd still sends; or
+- ``push``: with avoidd's planner off, switches to Position mode and pushes full forward stick
+  (``x = 1000``), so that only PX4's collision prevention (``CP_DIST``, fed by avoidd's
+  OBSTACLE_DISTANCE) stops the vehicle short of the wall.
+
+PX4's SIH vehicle starts at its local origin facing north: scenarios must start at heading 0.
+"""
+
+from __future__ import annotations
+
+import asyncio
+import contextlib
+import dataclasses
+import logging
+import math
+import time
+from pathlib import Path
+
+from avoidd.config.sim import ScenarioConfig
+from avoidd.config.sources import SourceConfig
+from avoidd.daemon import Daemon
+from avoidd.errors import LinkError
+from avoidd.mavlink import codec as mav
+from avoidd.sim.external import ExternalRun, ExternalSummary, Mode, daemon_config
+from avoidd.sim.gcs import GroundStation
+from avoidd.sim.pose_source import PoseRenderedSource, VehiclePose, vehicle_pose
+from avoidd.sim.px4 import ONBOARD_PORT, Px4Sitl
+from avoidd.sim.render import StereoRenderer
+from avoidd.sources.base import FrameSource
+from avoidd.types import Mount, RectifiedRig
+from avoidd.vision.calibration import Calibration
+
+logger = logging.getLogger(__name__)
+
+_STICK_RATE_HZ = 20.0
+_NAV_TAKEOFF = 22
+
+
+class Px4Run(ExternalRun):
+    """One scenario against a real PX4 SITL.
+
+    Args:
+        scenario: The scenario (its world, goal, duration, pass criteria; heading 0).
+        binary_dir: Folder with ``bin/px4`` and ``etc/``.
+        mode: ``planner`` (avoidd flies in OFFBOARD) or ``push`` (full stick in Position mode,
+            PX4's collision prevention stops the vehicle on avoidd's data).
+        cp_dist_m: PX4's ``CP_DIST`` for the flight (None: avoidd.params').
+        params: Further PX4 parameters set at boot.
+        release_s: Planner: seconds after the goal is reached (or the duration ends) before the
+            ground station switches to Position mode; None: no switch.
+    """
+
+    def __init__(
+        self,
+        scenario: ScenarioConfig,
+        binary_dir: Path,
+        mode: Mode = "planner",
+        cp_dist_m: float | None = None,
+        params: dict[str, float] | None = None,
+        release_s: float | None = 2.0,
+    ) -> None:
+        super().__init__(scenario, binary_dir, mode=mode)
+        if abs(self.scenario.start.yaw_deg) > 1e-6:
+            raise LinkError(
+                f"scenario {self.scenario.name}: PX4's SIH vehicle starts facing north; "
+                "give start.yaw_deg 0"
+            )
+        self.params = dict(params or {})
+        if cp_dist_m is not None:
+            self.params["CP_DIST"] = cp_dist_m
+        self.params.setdefault("MIS_TAKEOFF_ALT", self.goal[2])
+        self.release_s = release_s
+        self.stick_x = 0
+        """Forward stick the ground station sends (-1000..1000)."""
+        self.offboard_s: float | None = None
+        """Seconds from the OFFBOARD request until avoidd saw OFFBOARD (planner)."""
+        self.setpoints_after_release: int | None = None
+        """Setpoints avoidd sent from one cycle after it saw Position mode until 2 s later."""
+        self.estimator_s = 0.0
+        self.gcs: GroundStation | None = None
+        """The ground station of the run (what it heard stays readable after the run)."""
+
+    async def run(self, port: int = ONBOARD_PORT) -> ExternalSummary:
+        """Start PX4 and avoidd, fly the scenario, stop everything; the summary.
+
+        Args:
+            port: Ignored: PX4's onboard link sends to UDP 14540, avoidd listens there.
+
+        Raises:
+            LinkError: PX4 did not start, or would not arm, take off or engage OFFBOARD.
+        """
+        sitl = Px4Sitl(self.binary_dir, extra_params=self.params)
+        config = daemon_config(ONBOARD_PORT, self.scenario, self.mode == "planner")
+        daemon = Daemon(
+            config, {"front": Calibration(self.rig, None, Path("sim"))}, open_source=self._camera
+        )
+        self.daemon = daemon
+        task: asyncio.Task[int] | None = None
+        sticks: asyncio.Task[None] | None = None
+        try:
+            gcs = await sitl.start(timeout_s=30.0)
+            self.gcs = gcs
+            task = asyncio.create_task(daemon.run(), name="avoidd")
+            sticks = asyncio.create_task(self._sticks(gcs), name="gcs-sticks")
+            await self._fly_px4(gcs, sitl)
+        finally:
+            if sticks is not None:
+                sticks.cancel()
+                with contextlib.suppress(asyncio.CancelledError):
+                    await sticks
+            if task is not None:
+                daemon.stop()
+                with contextlib.suppress(Exception):
+                    await asyncio.wait_for(task, 30.0)
+            await sitl.stop()
+        self._judge()
+        return self.summary
+
+    def _camera(
+        self,
+        config: SourceConfig,
+        rig: RectifiedRig,
+        head: str,
+        paced: bool,
+        input_path: Path | None = None,
+    ) -> FrameSource:
+        """The head's source: the world from the reported pose, heights above home.
+
+        PX4's local origin is where its estimator started, up to 2 m above or below the ground
+        here; HOME_POSITION (set at arming, on the ground) says where the ground is.
+        """
+        daemon = self.daemon
+        assert daemon is not None
+        renderer = StereoRenderer(self.world, rig, Mount())
+        local = vehicle_pose(daemon.vehicle, self.offset_ne_m)
+
+        def pose(t_ns: int) -> VehiclePose | None:
+            found = local(t_ns)
+            home_up_m = daemon.vehicle.home_up_m
+            if found is None or home_up_m is None:
+                return found
+            return dataclasses.replace(found, down_m=found.down_m + home_up_m)
+
+        return PoseRenderedSource(renderer, pose, self.scenario.fps, seed=self.world.seed)
+
+    async def _sticks(self, gcs: GroundStation) -> None:
+        """MANUAL_CONTROL at 20 Hz: throttle centred (hold altitude), forward as ``stick_x``."""
+        while True:
+            system = self.daemon.vehicle.system_id if self.daemon is not None else None
+            gcs.send(gcs.codec.build("MANUAL_CONTROL", system or 1, self.stick_x, 0, 500, 0, 0))
+            await asyncio.sleep(1.0 / _STICK_RATE_HZ)
+
+    async def _fly_px4(self, gcs: GroundStation, sitl: Px4Sitl) -> None:
+        self.estimator_s = await sitl.wait_estimator(120.0)
+        await self._wait_ready(60.0)
+        if not await gcs.arm(retry_s=60.0):
+            raise LinkError("PX4 would not arm within 60 s")
+        await self._take_off_px4(gcs)
+        # Take-off done: PX4 holds (LOITER), or is near the height above home. Not
+        # LOCAL_POSITION_NED's height: the estimator's origin sits up to 2 m off the ground
+        # here (its height drifts while it settles).
+        await self._wait_mode("TAKEOFF", 10.0)
+        await self._wait_climbed(gcs, self.goal[2] - 0.4, 40.0)
+        assert self.daemon is not None
+        self.home_up_m = self.daemon.vehicle.home_up_m or 0.0
+        if self.mode == "planner":
+            await self._give_goal(gcs)
+            await self._engage_offboard(gcs)
+            self._t0_ns = time.monotonic_ns()
+            await self._watch_until_goal(gcs, self.scenario.duration_s)
+            if self.release_s is not None:
+                await self._watch(gcs, self.release_s, push=False, reset=False)
+                await self._release(gcs)
+        else:
+            # PX4's merged obstacle map, as it streams it back (36 bins of 10 degrees).
+            await gcs.request_message_interval("OBSTACLE_DISTANCE", 5.0)
+            if await gcs.set_mode("px4", "POSCTL") != mav.MAV_RESULT_ACCEPTED:
+                raise LinkError("PX4 refused Position mode")
+            await self._wait_mode("POSCTL", 10.0)
+            self._t0_ns = time.monotonic_ns()
+            self.stick_x = 1000
+            await self._watch(gcs, self.scenario.duration_s, push=False)
+            self.stick_x = 0
+
+    async def _wait_ready(self, timeout_s: float) -> None:
+        """Until avoidd sends fresh proximity data (its camera needs the pose PX4 reports)."""
+        daemon = self.daemon
+        assert daemon is not None
+        deadline = time.monotonic() + timeout_s
+        while time.monotonic() < deadline:
+            sent = daemon.sent["OBSTACLE_DISTANCE"]
+            await asyncio.sleep(1.0)
+            if daemon.sent["OBSTACLE_DISTANCE"] >= sent + 5:
+                return
+        raise LinkError(f"avoidd sent no proximity data within {timeout_s:.0f} s")
+
+    async def _take_off_px4(self, gcs: GroundStation) -> None:
+        """NAV_TAKEOFF with every position parameter NaN: here, to ``MIS_TAKEOFF_ALT``.
+
+        PX4 reads params 5-7 as latitude, longitude and altitude above sea level, and takes
+        zeros literally: a take-off to 0 N 0 E stays on the ground (seen).
+        """
+        nan = math.nan
+        deadline = time.monotonic() + 20.0
+        result: int | None = None
+        while time.monotonic() < deadline:
+            result = await gcs.command(_NAV_TAKEOFF, -1, 0, 0, nan, nan, nan, nan)
+            if result == mav.MAV_RESULT_ACCEPTED:
+                return
+            await asyncio.sleep(1.0)
+        said = [m.text for m in gcs.of_type("STATUSTEXT")][-5:]
+        raise LinkError(f"PX4 refused to take off (MAV_RESULT {result}; it said {said})")
+
+    async def _wait_climbed(self, gcs: GroundStation, height_m: float, timeout_s: float) -> None:
+        """Until PX4 holds after take-off or is ``height_m`` above home."""
+        daemon = self.daemon
+        assert daemon is not None
+        deadline = time.monotonic() + timeout_s
+        height = math.nan
+        while time.monotonic() < deadline:
+            mode = daemon.vehicle.mode
+            if mode is not None and mode.name == "LOITER":
+                return
+            report = await gcs.next_message(
+                lambda m: m.get_type() == "GLOBAL_POSITION_INT" and gcs.from_autopilot(m), 1.0
+            )
+            if report is not None:
+                height = report.relative_alt / 1000.0
+                if height >= height_m:
+                    return
+        raise LinkError(
+            f"PX4 did not climb to {height_m:.1f} m in {timeout_s:.0f} s ({height:.1f})"
+        )
+
+    async def _wait_mode(self, name: str, timeout_s: float) -> float:
+        """Until avoidd's link decodes PX4's mode as ``name``; seconds waited."""
+        daemon = self.daemon
+        assert daemon is not None
+        start = time.monotonic()
+        while time.monotonic() - start < timeout_s:
+            mode = daemon.vehicle.mode
+            if mode is not None and mode.name == name:
+                return time.monotonic() - start
+            await asyncio.sleep(0.02)
+        mode = daemon.vehicle.mode
+        raise LinkError(f"PX4 not in {name} within {timeout_s:.0f} s (in {mode and mode.name})")
+
+    async def _engage_offboard(self, gcs: GroundStation) -> None:
+        """Wait for avoidd's prestream (> 1 s of it), then ask for OFFBOARD until PX4 is in it."""
+        daemon = self.daemon
+        assert daemon is not None
+        loop = daemon.avoidance
+        assert loop is not None
+        deadline = time.monotonic() + 20.0
+        while loop.state != "prestream":
+            if time.monotonic() > deadline:
+                raise LinkError(f"avoidd did not prestream (state {loop.state})")
+            await asyncio.sleep(0.1)
+        await asyncio.sleep(1.5)
+        start = time.monotonic()
+        for _ in range(5):
+            result = await gcs.set_mode("px4", "OFFBOARD")
+            if result == mav.MAV_RESULT_ACCEPTED:
+                with contextlib.suppress(LinkError):
+                    await self._wait_mode("OFFBOARD", 5.0)
+                    self.offboard_s = time.monotonic() - start
+                    return
+            await asyncio.sleep(1.0)
+        said = [m.text for m in gcs.of_type("STATUSTEXT")][-5:]
+        raise LinkError(f"PX4 did not engage OFFBOARD (it said {said})")
+
+    async def _watch_until_goal(self, gcs: GroundStation, duration_s: float) -> None:
+        """Sample until the goal is reached or the duration ends."""
+        deadline_ns = self._t0_ns + int(duration_s * 1e9)
+        while time.monotonic_ns() < deadline_ns and self.summary.reached_s is None:
+            position = await gcs.next_message(lambda m: m.get_type() == "LOCAL_POSITION_NED", 1.0)
+            if position is not None and gcs.from_autopilot(position):
+                self._measure(position)
+
+    async def _watch(
+        self, gcs: GroundStation, duration_s: float, push: bool, reset: bool = True
+    ) -> None:
+        """Sample for ``duration_s`` (from the flight's start, or from now with ``reset`` off)."""
+        if reset:
+            await super()._watch(gcs, duration_s, push)
+            return
+        deadline_ns = time.monotonic_ns() + int(duration_s * 1e9)
+        while time.monotonic_ns() < deadline_ns:
+            position = await gcs.next_message(lambda m: m.get_type() == "LOCAL_POSITION_NED", 1.0)
+            if position is not None and gcs.from_autopilot(position):
+                self._measure(position)
+
+    async def _release(self, gcs: GroundStation) -> None:
+        """The pilot takes over: Position mode; count avoidd's setpoints after one cycle."""
+        daemon = self.daemon
+        assert daemon is not None
+        if await gcs.set_mode("px4", "POSCTL") != mav.MAV_RESULT_ACCEPTED:
+            self.summary.failures.append("PX4 refused Position mode after the flight")
+            return
+        await self._wait_mode("POSCTL", 5.0)
+        loop = daemon.avoidance
+        assert loop is not None
+        await asyncio.sleep(1.5 / loop.config.setpoint_rate_hz)  # the cycle under way may send
+        before = loop.sent
+        await asyncio.sleep(2.0)
+        self.setpoints_after_release = loop.sent - before

@@ -1,0 +1,318 @@
+"""avoidd against a real PX4 SITL (SIH physics): discovery and restart, collision prevention on
+avoidd's OBSTACLE_DISTANCE, and avoidd's planner flying OFFBOARD.
+
+PX4's ports are fixed (its GCS link sends to UDP 14550, its onboard link to 14540): these tests
+run one PX4 at a time, and each waits about 35 s for PX4's estimator to settle.
+"""
+
+from __future__ import annotations
+
+import asyncio
+import contextlib
+import math
+import time
+from pathlib import Path
+from typing import Any
+
+import pytest
+from pymavlink import mavutil
+
+from avoidd.config.sim import load_scenario
+from avoidd.daemon import Daemon
+from avoidd.daemon.outputs import Outputs
+from avoidd.loading import load_all
+from avoidd.mavlink import codec as mav
+from avoidd.planner.core import Goal
+from avoidd.sim.gcs import GroundStation
+from avoidd.sim.px4 import Px4Sitl
+from avoidd.sim.px4_run import Px4Run
+from tests.helpers import synthetic_config, wait_for
+
+pytestmark = [pytest.mark.sitl, pytest.mark.timeout(300)]
+
+SCENARIOS = Path(__file__).resolve().parents[1] / "sitl" / "px4"
+MAV_AUTOPILOT_PX4 = 12
+UNKNOWN_CM = 65535
+
+
+async def test_px4_discovery_streams_arming_and_restart(px4_sitl_dir: Path, tmp_path: Path) -> None:
+    """avoidd recognises PX4, decodes its mode and arming, gets its streams, and sees it restart.
+
+    PX4 SITL v1.15.4 denies MAV_CMD_PREFLIGHT_REBOOT_SHUTDOWN (MAV_RESULT_DENIED, seen): then
+    the test restarts its process, as a power cycle would, and watches avoidd take it up again.
+    """
+    sitl = Px4Sitl(px4_sitl_dir)
+    t0 = time.monotonic()
+    gcs = await sitl.start()
+    config, calibrations = load_all(
+        synthetic_config(
+            tmp_path,
+            sitl.onboard_connection,
+            mavlink={"system_id": "auto"},
+            pipeline={"max_age_ms": 300, "log_interval_s": 5.0},
+        )
+    )
+    daemon = Daemon(config, calibrations)
+    task = asyncio.create_task(daemon.run())
+    try:
+        vehicle = daemon.vehicle
+        assert await wait_for(lambda: vehicle.link_up and vehicle.mode is not None, 20.0)
+        beat = gcs.of_type("HEARTBEAT")[-1]
+        assert beat.autopilot == MAV_AUTOPILOT_PX4
+        assert vehicle.mode is not None and vehicle.mode.autopilot == "PX4"
+        assert not vehicle.mode.armed
+        first_mode = vehicle.mode.name
+        # PX4 sends ATTITUDE only once its estimator has settled.
+        settled_s = await sitl.wait_estimator(120.0)
+        assert await wait_for(lambda: vehicle.streams_acknowledged, 10.0)
+        attitude, position = daemon.received["ATTITUDE"], daemon.received["LOCAL_POSITION_NED"]
+        await asyncio.sleep(2.0)
+        attitude_hz = (daemon.received["ATTITUDE"] - attitude) / 2.0
+        position_hz = (daemon.received["LOCAL_POSITION_NED"] - position) / 2.0
+        # Arming as PX4 reports it.
+        assert await gcs.arm(retry_s=60.0)
+        assert await wait_for(lambda: vehicle.mode is not None and vehicle.mode.armed, 5.0)
+        assert await gcs.command(400, 0.0) == mav.MAV_RESULT_ACCEPTED  # disarm
+        assert await wait_for(lambda: vehicle.mode is not None and not vehicle.mode.armed, 5.0)
+        # MAV_CMD_PREFLIGHT_REBOOT_SHUTDOWN. PX4 SITL either reboots in place (its boot clock
+        # starts over) or its process ends; for the latter, start the process again.
+        process = sitl.process
+        assert process is not None
+        reboots = vehicle.reboots
+        result = await gcs.command(246, 1.0)
+        await wait_for(lambda: process.returncode is not None or vehicle.reboots > reboots, 15.0)
+        exited = process.returncode is not None
+        restart_ns = time.monotonic_ns()
+        if exited or result != mav.MAV_RESULT_ACCEPTED:
+            # This SITL denies the command (MAV_RESULT_DENIED, seen): restart the process, as a
+            # power cycle or a supervisor would.
+            restart_ns = time.monotonic_ns()
+            await sitl.restart()
+        assert await wait_for(lambda: vehicle.link_up, 20.0)
+        # Its boot clock started over: avoidd forgets its state and asks for the streams again.
+        assert await wait_for(lambda: vehicle.reboots > reboots, 15.0), (result, exited)
+        back_s = (time.monotonic_ns() - restart_ns) / 1e9
+        position = daemon.received["LOCAL_POSITION_NED"]
+        assert await wait_for(lambda: vehicle.streams_acknowledged, 15.0)
+        assert await wait_for(lambda: daemon.received["LOCAL_POSITION_NED"] > position + 10, 5.0)
+    finally:
+        daemon.stop()
+        try:
+            assert await asyncio.wait_for(task, 30.0) == 0
+        finally:
+            await sitl.stop()
+    print(
+        f"\nPX4 first mode {first_mode}; estimator settled after {settled_s:.1f} s; ATTITUDE "
+        f"{attitude_hz:.0f} Hz, LOCAL_POSITION_NED {position_hz:.0f} Hz; reboot command "
+        f"MAV_RESULT {result}, process exited: {exited}; reboot seen {back_s:.1f} s after the "
+        f"command or restart; test {time.monotonic() - t0:.0f} s"
+    )
+    assert settled_s < 90.0
+    assert attitude_hz >= 20 and position_hz >= 5
+
+
+def _folded(distances: list[int]) -> list[int]:
+    return [int(d) for d in distances[:36]]
+
+
+async def test_px4_collision_prevention_stops_a_pushed_vehicle_on_avoidd_data(
+    px4_sitl_dir: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    """Position mode, MPC_POS_MODE 0, CP_DIST 2: full forward stick at a wall 12 m ahead."""
+    sent: list[tuple[int, Any]] = []
+    build = Outputs.obstacle_distance_message
+
+    def recording(self: Outputs, now_ns: int) -> Any:
+        message = build(self, now_ns)
+        if message is not None:
+            sent.append((time.monotonic_ns(), message))
+        return message
+
+    monkeypatch.setattr(Outputs, "obstacle_distance_message", recording)
+    t0 = time.monotonic()
+    scenario = load_scenario(SCENARIOS / "wall-stop.yaml")
+    run = Px4Run(scenario, px4_sitl_dir, mode="push", cp_dist_m=2.0)
+    summary = await run.run()
+    gcs = run.gcs
+    assert gcs is not None
+    closest = min(summary.samples, key=lambda s: s.clearance_m)
+    radius_m = scenario.avoidance.vehicle_radius_m
+    print(
+        f"\npush: closest approach edge {closest.clearance_m:.2f} m (centre "
+        f"{closest.clearance_m + radius_m:.2f} m, CP_DIST 2.0) at {closest.t_s:.1f} s; top speed "
+        f"{max(s.speed_m_s for s in summary.samples):.1f} m/s; end N{summary.final_ne_m[0]:.2f}; "
+        f"test {time.monotonic() - t0:.0f} s"
+    )
+    assert not summary.collided
+    assert summary.passed, summary.failures
+    # Full stick moved it most of the way (PX4 flew), and it stopped short of the wall.
+    assert max(s.north_m for s in summary.samples) > 6.0
+    assert closest.clearance_m + radius_m > 1.5
+    # PX4's merged map (streamed back on the GCS link) is what avoidd sent: each PX4 bin that
+    # holds a reading equals one avoidd sent for the same or a neighbouring bin (PX4 keeps its
+    # map in the local frame: a few degrees of yaw move a bearing to the next bin) within the
+    # second before.
+    echoes = [
+        h
+        for h in gcs.heard
+        if h.message.get_type() == "OBSTACLE_DISTANCE" and gcs.from_autopilot(h.message)
+    ]
+    assert len(echoes) >= 20, "PX4 streamed no OBSTACLE_DISTANCE back"
+    checked = mismatched = 0
+    for heard in echoes:
+        echo = heard.message
+        assert echo.increment == 10 or round(echo.increment_f) == 10
+        recent = [
+            _folded(m.distances)
+            for t, m in sent
+            if heard.received_ns - 1_500_000_000 <= t <= heard.received_ns
+        ]
+        if not recent:
+            continue
+        for index, value in enumerate(_folded(echo.distances)):
+            if value >= UNKNOWN_CM or value > echo.max_distance:
+                continue
+            candidates = {row[(index + k) % 36] for row in recent for k in (-1, 0, 1)} - {
+                UNKNOWN_CM
+            }
+            checked += 1
+            if not any(abs(value - c) <= max(10, 0.05 * c) for c in candidates):
+                mismatched += 1
+    print(f"PX4 echoed {len(echoes)} maps; {checked} readings checked, {mismatched} mismatched")
+    assert checked >= 100
+    assert mismatched <= 0.05 * checked
+
+
+async def test_px4_offboard_planner_flies_round_the_wall_and_yields_to_the_pilot(
+    px4_sitl_dir: Path,
+) -> None:
+    """avoidd prestreams, the GCS switches to OFFBOARD, avoidd flies round the wall to the goal;
+    Position mode then stops its setpoints at once."""
+    t0 = time.monotonic()
+    run = Px4Run(load_scenario(SCENARIOS / "wall-around.yaml"), px4_sitl_dir, mode="planner")
+    summary = await run.run()
+    print(
+        f"\nplanner: {summary.as_json()}; OFFBOARD {run.offboard_s} s after the request; "
+        f"setpoints after Position mode {run.setpoints_after_release}; "
+        f"test {time.monotonic() - t0:.0f} s"
+    )
+    assert summary.passed, summary.failures
+    assert not summary.collided
+    assert run.offboard_s is not None
+    assert run.setpoints_after_release == 0
+
+
+async def _sticks(gcs: GroundStation) -> None:
+    """Neutral sticks at 20 Hz, as a pilot's joystick (Position mode needs manual control)."""
+    while True:
+        gcs.send(gcs.codec.build("MANUAL_CONTROL", 1, 0, 0, 500, 0, 0))
+        await asyncio.sleep(0.05)
+
+
+def _state(daemon: Daemon) -> str | None:
+    return None if daemon.avoidance is None else daemon.avoidance.state
+
+
+def _px4_mode(gcs: GroundStation) -> str:
+    beat = gcs.of_type("HEARTBEAT")[-1]
+    return str(mavutil.interpret_px4_mode(beat.base_mode, beat.custom_mode))
+
+
+async def test_px4_leaves_offboard_when_avoidd_stops_and_a_restarted_avoidd_waits(
+    px4_sitl_dir: Path, tmp_path: Path
+) -> None:
+    """avoidd stopped in OFFBOARD: PX4 falls back to Position mode after COM_OF_LOSS_T (1 s).
+    avoidd started again stays silent (PX4 holds in Position mode) until it gets a new goal and
+    OFFBOARD is entered again; then it flies."""
+    t0 = time.monotonic()
+    sitl = Px4Sitl(px4_sitl_dir)
+    gcs = await sitl.start()
+    sticks = asyncio.create_task(_sticks(gcs))
+    sections = {
+        "avoidance": {
+            "enabled": True,
+            "unknown": "free",
+            "goal": {"north_m": 10.0, "east_m": 0.0, "altitude_m": 3.0},
+        }
+    }
+    config, calibrations = load_all(
+        synthetic_config(
+            tmp_path,
+            sitl.onboard_connection,
+            source={"kind": "synthetic", "fps": 10, "seed": 3, "obstacles": []},
+            mavlink={"system_id": "auto"},
+            pipeline={"max_age_ms": 300, "log_interval_s": 5.0},
+            sections=sections,
+        )
+    )
+    daemon = Daemon(config, calibrations)
+    task: asyncio.Task[int] | None = asyncio.create_task(daemon.run())
+    try:
+        await sitl.wait_estimator(120.0)
+        assert await gcs.arm(retry_s=60.0)
+        nan = math.nan
+        assert await gcs.command(22, -1, 0, 0, nan, nan, nan, nan) == mav.MAV_RESULT_ACCEPTED
+        climbed = await gcs.next_message(
+            lambda m: m.get_type() == "GLOBAL_POSITION_INT" and m.relative_alt > 2000, 40.0
+        )
+        assert climbed is not None, "PX4 did not take off"
+        assert await wait_for(lambda: daemon.avoidance.state == "prestream", 20.0)
+        await asyncio.sleep(1.5)
+        assert await gcs.set_mode("px4", "OFFBOARD") == mav.MAV_RESULT_ACCEPTED
+        assert await wait_for(lambda: _px4_mode(gcs) == "OFFBOARD", 5.0)
+        assert await wait_for(lambda: daemon.avoidance.state not in {"prestream", "stale"}, 5.0)
+        await asyncio.sleep(3.0)  # avoidd flies
+        # avoidd stops: its setpoints end.
+        daemon.stop()
+        assert await asyncio.wait_for(task, 30.0) == 0
+        task = None
+        stopped_ns = time.monotonic_ns()
+        assert await wait_for(lambda: _px4_mode(gcs) != "OFFBOARD", 10.0)
+        fallback_s = (time.monotonic_ns() - stopped_ns) / 1e9
+        fallback_mode = _px4_mode(gcs)
+        # avoidd again: PX4 flies armed in Position mode; avoidd stays silent. (PX4 would go
+        # back to OFFBOARD by itself as soon as setpoints came back: its failsafe clears.)
+        daemon = Daemon(config, calibrations)
+        task = asyncio.create_task(daemon.run())
+        flies = "pilot flies; waiting for a new goal"
+        assert await wait_for(lambda: _state(daemon) == flies, 20.0)
+        since = time.monotonic_ns()
+        await asyncio.sleep(4.0)
+        modes = {
+            str(mavutil.interpret_px4_mode(m.base_mode, m.custom_mode))
+            for m in gcs.of_type("HEARTBEAT", since)
+        }
+        speeds = [math.hypot(m.vx, m.vy) for m in gcs.of_type("LOCAL_POSITION_NED", since)]
+        assert _state(daemon) == flies
+        assert daemon.avoidance is not None and daemon.avoidance.sent == 0
+        # The pilot hands over again: Position mode (ends PX4's pending return to OFFBOARD),
+        # a new goal (avoidd prestreams), OFFBOARD, and avoidd flies.
+        assert await gcs.set_mode("px4", "POSCTL") == mav.MAV_RESULT_ACCEPTED
+        daemon.avoidance.set_goal(Goal(12.0, 0.0, 3.0, "GCS goal"))
+        assert await wait_for(lambda: _state(daemon) == "prestream", 5.0)
+        await asyncio.sleep(1.5)
+        prestream_modes = {_px4_mode(gcs)}
+        prestreamed = daemon.avoidance.sent
+        assert await gcs.set_mode("px4", "OFFBOARD") == mav.MAV_RESULT_ACCEPTED
+        assert await wait_for(lambda: _px4_mode(gcs) == "OFFBOARD", 5.0)
+        planning = {"moving", "dead end", "no path", "arrived"}
+        assert await wait_for(lambda: _state(daemon) in planning, 10.0), _state(daemon)
+        flying_state = _state(daemon)
+    finally:
+        sticks.cancel()
+        if task is not None:
+            daemon.stop()
+            with contextlib.suppress(Exception):
+                await asyncio.wait_for(task, 30.0)
+        await sitl.stop()
+    print(
+        f"\nloss: PX4 left OFFBOARD {fallback_s:.2f} s after avoidd stopped, into "
+        f"{fallback_mode}; restarted avoidd silent 4 s, PX4 in {sorted(modes)} at <= "
+        f"{max(speeds):.2f} m/s; new goal: {prestreamed} prestream setpoints, PX4 in "
+        f"{sorted(prestream_modes)}; after OFFBOARD: {flying_state}; "
+        f"test {time.monotonic() - t0:.0f} s"
+    )
+    assert fallback_mode == "POSCTL"
+    assert fallback_s <= 3.0
+    assert modes == {"POSCTL"} and prestream_modes == {"POSCTL"}
+    assert max(speeds) < 0.6
