@@ -48,7 +48,10 @@ class AvoidanceConfig(Strict):
         no_progress_s: Also "no path to goal" when the vehicle has not come 0.5 m nearer to
             the goal for this long (it can only go round and round, or back and forth).
         px4_prestream: While armed with a goal in another mode, stream hold-here setpoints
-            so that PX4 can be switched to OFFBOARD (it needs a stream above 2 Hz first).
+            so that PX4 can be switched to OFFBOARD (it needs a stream above 2 Hz first); not
+            after the vehicle left OFFBOARD while armed, nor when avoidd starts while it is
+            armed in another mode (PX4 would take the stream back into OFFBOARD by itself),
+            until a new goal or a new arming.
         follow_mission: Fly the autopilot's mission (NAV_WAYPOINT items) as goals.
         goal: A goal to fly to from start (tests, bench work); goals from MAVLink replace it.
         params_file: Where the AVD_* parameters set in flight are kept (JSON, read back at
