@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import time
 from dataclasses import dataclass, field
+from typing import NamedTuple
 
 import numpy as np
 import numpy.typing as npt
@@ -89,6 +90,32 @@ class HeadResult:
     near_pixels: int = 0
     left_view: Image | None = field(default=None, repr=False)
     obstacle_mask: BoolArray | None = field(default=None, repr=False)
+
+
+class Matched(NamedTuple):
+    """One frame after the matcher: what :meth:`HeadPipeline.finish` turns into a result.
+
+    Attributes:
+        frame: The raw stereo pair.
+        left: The rectified, preprocessed left view (grey).
+        right: The same of the right view.
+        texture: Pixels the texture mask keeps, when the mask is on.
+        disparity: The matcher's disparity (NaN unmeasured), near-field pass applied.
+        filled_by_matcher: Pixels the matcher filled rather than measured, when it says.
+        near_pixels: Pixels measured by the near-field pass.
+        timing_ms: Milliseconds of the stages so far (rectify, preprocess, match).
+        steps_ms: Milliseconds of each preprocessing step.
+    """
+
+    frame: StereoFrame
+    left: Image
+    right: Image
+    texture: BoolArray | None
+    disparity: FloatArray
+    filled_by_matcher: BoolArray | None
+    near_pixels: int
+    timing_ms: dict[str, float]
+    steps_ms: dict[str, float]
 
 
 class Laps:
@@ -206,7 +233,7 @@ class HeadPipeline:
     def process(
         self, frame: StereoFrame, pose: FramePose | None = None, with_obstacles: bool = False
     ) -> HeadResult:
-        """Run every stage on one frame.
+        """Run every stage on one frame (:meth:`match` then :meth:`finish`).
 
         Args:
             frame: The raw stereo pair.
@@ -216,6 +243,23 @@ class HeadPipeline:
 
         Returns:
             The head's result for this frame.
+
+        Raises:
+            BrokenFrame: The frame does not fit the calibration.
+        """
+        return self.finish(self.match(frame), pose, with_obstacles)
+
+    def match(self, frame: StereoFrame) -> Matched:
+        """The first half of the stages: rectify, preprocess and match one frame.
+
+        It may run in one thread while :meth:`finish` runs on the previous frame in another
+        (the matcher is used by this half only), but never twice at the same time.
+
+        Args:
+            frame: The raw stereo pair.
+
+        Returns:
+            The frame's raw disparity and what the second half needs with it.
 
         Raises:
             BrokenFrame: The frame does not fit the calibration.
@@ -238,6 +282,31 @@ class HeadPipeline:
             if filled_by_matcher is not None:
                 filled_by_matcher = filled_by_matcher & ~near.near  # measured, not filled
         lap("match")
+        return Matched(
+            frame, left, right, texture, disparity, filled_by_matcher, near_pixels, lap.ms, steps_ms
+        )
+
+    def finish(
+        self, matched: Matched, pose: FramePose | None = None, with_obstacles: bool = False
+    ) -> HeadResult:
+        """The second half of the stages: post-process, depth and perception.
+
+        Safe to run in another thread than :meth:`match` (it only reads the head's settings).
+
+        Args:
+            matched: What :meth:`match` made of the frame.
+            pose: Vehicle attitude and height at capture; default :meth:`default_pose`.
+            with_obstacles: Also cluster obstacle points into obstacles (replay, debugging).
+
+        Returns:
+            The head's result for the frame.
+
+        Raises:
+            BrokenFrame: The pose or the mount holds a number that is not finite.
+        """
+        frame, left, right, texture = matched.frame, matched.left, matched.right, matched.texture
+        disparity, filled_by_matcher = matched.disparity, matched.filled_by_matcher
+        lap = Laps()
         post = self._post
         if post.subpixel_refine:
             disparity = refine_subpixel(left, right, disparity, post.refine_window_px)
@@ -305,13 +374,13 @@ class HeadPipeline:
             seen.scan,
             depth,
             valid,
-            lap.ms,
-            steps_ms,
+            {**matched.timing_ms, **lap.ms},
+            matched.steps_ms,
             filled_depth,
             seen.obstacles,
             seen.pose,
             seen.candidates,
-            near_pixels,
+            matched.near_pixels,
             left,
             seen.candidate_mask,
         )

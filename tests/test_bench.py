@@ -288,3 +288,54 @@ def test_daemon_bench_reports_what_the_demo_daemon_sent(tmp_path: Path) -> None:
     assert report["obstacle_distance_hz"] == pytest.approx(
         report["scans"] / report["seconds"], rel=0.005
     )
+
+
+def test_daemon_bench_compares_thread_counts_on_a_faster_camera(tmp_path: Path) -> None:
+    """``bench --daemon --threads 1 --threads 2 --source-fps``: one report per thread count,
+    each run with that many vision threads, latencies ordered, and the comparison printed."""
+    out = tmp_path / "threads.json"
+    command = [
+        *("bench", "--daemon", "config/demo.yaml", "--seconds=2", f"--json={out}"),
+        *("--threads", "1", "--threads", "2", "--source-fps", "60"),
+    ]
+    done = subprocess.run(
+        [sys.executable, "-m", "avoidd", "--log-level=ERROR", *command],
+        cwd=REPO,
+        capture_output=True,
+        text=True,
+        timeout=180,
+        check=False,
+    )
+    assert done.returncode == 0, done.stderr
+    reports = json.loads(out.read_text())
+    assert [report["threads"] for report in reports] == [1, 2]
+    for report in reports:
+        (head,) = report["heads"]
+        assert head["fps"] > 0
+        assert 0 < head["latency_ms"]["p50"] <= head["latency_ms"]["p99"]
+        send = report["capture_to_send_ms"]
+        assert 0 < send["p50"] <= send["p99"]
+    assert "2 threads: " in done.stdout and "the one-thread frame rate" in done.stdout
+
+
+def test_daemon_bench_refuses_a_camera_rate_for_a_recorded_source(tmp_path: Path) -> None:
+    config = tmp_path / "files.yaml"
+    calibration = (REPO / "config" / "calibration" / "synthetic-640x480.yaml").resolve()
+    for side in ("left", "right"):
+        (tmp_path / side).mkdir()
+        cv2.imwrite(str(tmp_path / side / "000001.png"), np.zeros((480, 640), np.uint8))
+    config.write_text(
+        "version: 1\nheads:\n  - name: front\n"
+        f"    calibration: {calibration}\n"
+        f"    source: {{kind: files, path: {tmp_path}}}\n"
+    )
+    done = subprocess.run(
+        [sys.executable, "-m", "avoidd", "bench", "--daemon", str(config), "--source-fps=60"],
+        cwd=REPO,
+        capture_output=True,
+        text=True,
+        timeout=60,
+        check=False,
+    )
+    assert done.returncode == 2, done.stderr
+    assert "--source-fps" in done.stderr and "'front' reads files" in done.stderr

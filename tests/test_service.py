@@ -336,20 +336,20 @@ async def test_a_stalled_matcher_stops_the_watchdog_until_it_recovers(
     async def scenario(daemon: Daemon) -> None:
         assert await wait_for(lambda: listener.count("WATCHDOG") >= 2, 20.0)
         head = daemon.heads[0]
-        process = head.pipeline.process
+        match = head.pipeline.match
 
         def stalled(*args: Any) -> Any:
             release.wait(30.0)
-            return process(*args)
+            return match(*args)
 
-        head.pipeline.process = stalled
+        head.pipeline.match = stalled
         try:
             assert await wait_for(lambda: listener.index("STATUS", "STUCK front") is not None, 10)
             marks["stuck"] = listener.index("STATUS", "STUCK front") or 0
             await asyncio.sleep(1.5)  # three ping periods
             marks["release"] = len(listener.messages)
         finally:
-            head.pipeline.process = process
+            head.pipeline.match = match
             release.set()
         assert await wait_for(lambda: listener.count("WATCHDOG", start=marks["release"]) >= 2, 10.0)
 

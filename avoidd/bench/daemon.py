@@ -14,6 +14,9 @@ import time
 from pathlib import Path
 from typing import Any
 
+import numpy as np
+
+from avoidd.config import AppConfig, SyntheticSourceConfig
 from avoidd.daemon import Daemon
 from avoidd.loading import load_all
 from avoidd.mavlink import codec as mav
@@ -47,22 +50,33 @@ class _Listener(asyncio.DatagramProtocol):
         return [m for t, m in self.heard if t >= since_s and m.get_type() == kind]
 
 
-async def run_bench(config_path: Path, seconds: float) -> dict[str, Any]:
+async def run_bench(
+    config_path: Path,
+    seconds: float,
+    threads: int | None = None,
+    source_fps: float | None = None,
+) -> dict[str, Any]:
     """Run the daemon on ``config_path`` for ``seconds`` after its first scan and measure.
 
     Args:
         config_path: A daemon configuration; its ``mavlink.connection`` is replaced.
         seconds: Length of the measured window.
+        threads: Overrides ``pipeline.threads`` (None: the configuration's).
+        source_fps: Overrides the frame rate of the heads' synthetic cameras (a camera
+            faster than the pipeline makes ``fps`` the pipeline's sustained rate).
 
     Returns:
         Figures: the configured and measured OBSTACLE_DISTANCE rates, the share of scans
-        that report an obstacle, scans withheld for stale data, HEARTBEAT states, and per
-        head the frames processed per second and the mean capture-to-result latency.
+        that report an obstacle, scans withheld for stale data, HEARTBEAT states, the
+        capture-to-send latency of the scans (p50, p99), and per head the frames processed
+        per second and the capture-to-result latency (mean, p50, p99).
 
     Raises:
         RuntimeError: No scan arrived within a minute.
+        ValueError: ``source_fps`` given for a head whose camera is not synthetic.
     """
     config, calibrations = load_all(config_path)
+    config = _overridden(config, threads, source_fps)
     loop = asyncio.get_running_loop()
     transport, listener = await loop.create_datagram_endpoint(
         _Listener, local_addr=("127.0.0.1", 0)
@@ -92,16 +106,20 @@ async def run_bench(config_path: Path, seconds: float) -> dict[str, Any]:
         processed = {
             head.name: head.stats.processed - processed0[head.name] for head in daemon.heads
         }
-        latency = {
-            head.name: statistics.fmean(head.stats.latency_ms) if head.stats.latency_ms else 0.0
-            for head in daemon.heads
-        }
+        latency = {head.name: list(head.stats.latency_ms) for head in daemon.heads}
+        threads_used = daemon.threads
         withheld = (daemon.outputs.withheld if daemon.outputs is not None else 0) - withheld0
     finally:
         daemon.stop()
         await asyncio.wait_for(task, timeout=15.0)
         transport.close()
     scans = listener.of_type("OBSTACLE_DISTANCE", start_s)
+    # time_usec is the capture time on this process's monotonic clock (see Outputs).
+    send_ms = [
+        (t - m.time_usec / 1e6) * 1000.0
+        for t, m in listener.heard
+        if t >= start_s and m.get_type() == "OBSTACLE_DISTANCE"
+    ]
     with_obstacle = sum(1 for m in scans if min(m.distances) <= max_cm)
     states: dict[str, int] = {}
     for heartbeat in listener.of_type("HEARTBEAT", start_s):
@@ -115,12 +133,17 @@ async def run_bench(config_path: Path, seconds: float) -> dict[str, Any]:
         "scans": len(scans),
         "scans_with_obstacle_percent": round(100.0 * with_obstacle / max(len(scans), 1), 1),
         "withheld_stale": withheld,
+        "threads": threads_used,
+        "capture_to_send_ms": _percentiles(send_ms),
         "heartbeat_states": states,
         "heads": [
             {
                 "name": name,
                 "fps": round(processed[name] / wall_s, 2),
-                "mean_latency_ms": round(latency[name], 1),
+                "mean_latency_ms": round(statistics.fmean(latency[name]), 1)
+                if latency[name]
+                else 0.0,
+                "latency_ms": _percentiles(latency[name]),
             }
             for name in processed
         ],
@@ -138,9 +161,66 @@ def format_report(report: dict[str, Any]) -> str:
         "  HEARTBEAT states: "
         + (", ".join(f"{k} {v}" for k, v in report["heartbeat_states"].items()) or "none"),
     ]
+    send = report["capture_to_send_ms"]
+    lines.append(
+        f"  {report['threads']} vision thread(s); capture to send p50 {send['p50']:.0f} ms, "
+        f"p99 {send['p99']:.0f} ms"
+    )
     lines += [
-        f"  head {h['name']}: {h['fps']:.1f} fps processed, mean latency "
-        f"{h['mean_latency_ms']:.0f} ms"
+        f"  head {h['name']}: {h['fps']:.1f} fps processed, capture to result mean "
+        f"{h['mean_latency_ms']:.0f} ms, p50 {h['latency_ms']['p50']:.0f} ms, "
+        f"p99 {h['latency_ms']['p99']:.0f} ms"
         for h in report["heads"]
     ]
     return "\n".join(lines)
+
+
+def _percentiles(values: list[float]) -> dict[str, float]:
+    """p50 and p99 of some milliseconds (0 when there are none)."""
+    if not values:
+        return {"p50": 0.0, "p99": 0.0}
+    p50, p99 = np.percentile(np.asarray(values), [50.0, 99.0])
+    return {"p50": round(float(p50), 1), "p99": round(float(p99), 1)}
+
+
+def _overridden(config: AppConfig, threads: int | None, source_fps: float | None) -> AppConfig:
+    """The configuration with the bench's overrides (thread count, camera rate)."""
+    if threads is not None:
+        pipeline = config.pipeline.model_copy(update={"threads": threads})
+        config = config.model_copy(update={"pipeline": pipeline})
+    if source_fps is not None:
+        heads = []
+        for head in config.heads:
+            if not isinstance(head.source, SyntheticSourceConfig):
+                raise ValueError(
+                    f"bench --source-fps: head '{head.name}' reads {head.source.kind}, not a "
+                    "synthetic camera; drop --source-fps or use a synthetic configuration"
+                )
+            source = head.source.model_copy(update={"fps": source_fps})
+            heads.append(head.model_copy(update={"source": source}))
+        config = config.model_copy(update={"heads": heads})
+    return config
+
+
+def compare_threads(reports: list[dict[str, Any]]) -> list[str]:
+    """Lines comparing runs with more threads to the one-thread run (first head).
+
+    The frame rate as a multiple of the one-thread rate, and the capture-to-result p99 as a
+    multiple of the one-thread frame time (1 / its frame rate).
+    """
+    single = next((r for r in reports if r["threads"] == 1), None)
+    if single is None or not single["heads"] or single["heads"][0]["fps"] <= 0:
+        return []
+    fps_1 = single["heads"][0]["fps"]
+    lines = []
+    for report in reports:
+        if report["threads"] == 1 or not report["heads"]:
+            continue
+        head = report["heads"][0]
+        lines.append(
+            f"{report['threads']} threads: {head['fps'] / fps_1:.2f}x the one-thread frame rate "
+            f"({head['fps']:.1f} vs {fps_1:.1f} fps); latency p99 "
+            f"{head['latency_ms']['p99'] * fps_1 / 1000.0:.2f}x the one-thread frame time "
+            f"({head['latency_ms']['p99']:.0f} vs {1000.0 / fps_1:.0f} ms)"
+        )
+    return lines

@@ -5,9 +5,10 @@ from __future__ import annotations
 import argparse
 import asyncio
 import json
+import sys
 from pathlib import Path
 
-from avoidd.commands import EXIT_OK
+from avoidd.commands import EXIT_CONFIG, EXIT_OK
 
 
 def configure(name: str, parser: argparse.ArgumentParser) -> None:
@@ -39,6 +40,19 @@ def configure(name: str, parser: argparse.ArgumentParser) -> None:
         )
         parser.add_argument(
             "--seconds", type=float, default=10.0, help="with --daemon: the measured window"
+        )
+        parser.add_argument(
+            "--threads",
+            type=int,
+            action="append",
+            help="with --daemon: run with this pipeline.threads (repeat to compare, e.g. "
+            "--threads 1 --threads 2)",
+        )
+        parser.add_argument(
+            "--source-fps",
+            type=float,
+            help="with --daemon: the synthetic cameras' frame rate (above the pipeline's, "
+            "fps is the sustained rate)",
         )
         parser.set_defaults(handler=run_vision_bench)
     elif name == "bench-debugview":
@@ -99,12 +113,22 @@ def run_vision_bench(args: argparse.Namespace) -> int:
 
 def run_daemon_bench(args: argparse.Namespace) -> int:
     """Run the daemon on a configuration for a while and print what it sent."""
-    from avoidd.bench.daemon import format_report, run_bench
+    from avoidd.bench.daemon import compare_threads, format_report, run_bench
 
-    report = asyncio.run(run_bench(args.daemon, args.seconds))
-    print(format_report(report))
+    reports = []
+    for threads in args.threads or [None]:
+        try:
+            report = asyncio.run(run_bench(args.daemon, args.seconds, threads, args.source_fps))
+        except ValueError as exc:
+            print(f"avoidd: {exc}", file=sys.stderr)
+            return EXIT_CONFIG
+        print(format_report(report))
+        reports.append(report)
+    for line in compare_threads(reports):
+        print(line)
     if args.json is not None:
-        args.json.write_text(json.dumps(report, indent=2) + "\n")
+        data = reports[0] if len(reports) == 1 else reports
+        args.json.write_text(json.dumps(data, indent=2) + "\n")
     return EXIT_OK
 
 

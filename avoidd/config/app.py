@@ -24,10 +24,15 @@ class PipelineConfig(Strict):
         max_age_ms: A scan older than this (from capture to send) is never sent; every bin goes
             out as unknown instead.
         log_interval_s: Period of the one-line status log (0.5 s to an hour).
+        threads: Vision threads: 0 = one per CPU core. With 2 or more, each head matches its
+            next frame while the previous one is post-processed (the stages overlap, the
+            newest frame still wins and results keep their order), and OpenCV's matcher uses
+            that many threads. 1 = one frame at a time on one thread (the least CPU).
     """
 
     max_age_ms: int = Field(300, ge=20, le=5000)
     log_interval_s: float = Field(5.0, ge=0.5, le=3600.0)
+    threads: int = Field(0, ge=0, le=64)
 
 
 class AppConfig(Strict):

@@ -13,6 +13,8 @@ from collections.abc import Callable, Coroutine
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
+import cv2
+
 from avoidd import sources
 from avoidd.config import AppConfig, MavlinkConfig, SimSourceConfig, SourceConfig
 from avoidd.daemon import health
@@ -113,6 +115,8 @@ class Daemon:
         self._announcer: Announcer | None = None
         self.vehicle = Vehicle(self.link, mavlink, self.announce)
         self._max_age_ns = config.pipeline.max_age_ms * 1_000_000
+        self.threads = config.pipeline.threads or cv2.getNumberOfCPUs()
+        """Vision threads (``pipeline.threads``, 0 = one per core)."""
         self._reported: dict[str, health.Reported] = {}
         self._beat: dict[str, health.Reported] = {}
         self._heartbeat_state = mav.MAV_STATE_BOOT
@@ -199,6 +203,7 @@ class Daemon:
                 self.pose_for,
                 self._open_source,
                 on_frame=self._on_frame,
+                overlap=self.threads >= 2,
             )
             for h in self.config.heads
         ]
@@ -220,6 +225,8 @@ class Daemon:
             ", signed" if mavlink.signing else "",
         )
         announcer(mav.MAV_SEVERITY_INFO, "avoidd started")
+        previous_threads = cv2.getNumThreads()
+        cv2.setNumThreads(self.threads)
         for head in self.heads:
             head.start()
         tasks = [
@@ -252,6 +259,7 @@ class Daemon:
             await asyncio.sleep(0.05)  # let the sender flush what is queued
             await self.link.close()
             self._timestamps.keep(self.codec.signing_timestamp)
+            cv2.setNumThreads(previous_threads)
         logger.info("avoidd stopped; MAVLink %s", self.link.counters())
         return code
 

@@ -11,7 +11,7 @@ from collections import deque
 from collections.abc import Callable
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Protocol
+from typing import Protocol, TypeVar
 
 from avoidd.config import HeadConfig, PerceptionConfig, SourceConfig
 from avoidd.daemon.framecheck import FrameCheck
@@ -20,13 +20,14 @@ from avoidd.logrepeat import RepeatLimiter
 from avoidd.mavlink import codec as mav
 from avoidd.mavlink.vehicle import Announce
 from avoidd.perception.temporal import SectorFilter
-from avoidd.pipeline import HeadPipeline, HeadResult
+from avoidd.pipeline import HeadPipeline, HeadResult, Matched
 from avoidd.slot import LatestSlot
 from avoidd.sources import FrameSource
 from avoidd.types import FramePose, RectifiedRig, SectorScan, StereoFrame
 from avoidd.vision.calibration import Calibration
 
 logger = logging.getLogger(__name__)
+_R = TypeVar("_R")
 
 _BACKOFF_MIN_S = 0.5
 _BACKOFF_MAX_S = 10.0
@@ -75,6 +76,7 @@ class Head:
         open_source: Opens the head's source (called from the capture thread).
         on_frame: Also given every captured frame with the head's name, in the capture
             thread (a recorder); it must return at once and never raise.
+        overlap: Match the next frame while the previous one is finished (two threads).
     """
 
     def __init__(
@@ -89,8 +91,10 @@ class Head:
         pose_for: Callable[[StereoFrame], FramePose],
         open_source: OpenSource,
         on_frame: Callable[[str, StereoFrame], None] | None = None,
+        overlap: bool = False,
     ) -> None:
         self.config = config
+        self._overlap = overlap
         self.name = config.name
         self.pipeline = HeadPipeline(config, calibration, max_range_m, perception)
         self.filter = SectorFilter(perception.temporal)
@@ -277,38 +281,81 @@ class Head:
             )
 
     async def compute(self) -> None:
-        """Compute task: process the newest frame in a worker thread, keep the latest result."""
-        while True:
-            frame = await self.slot.get()
-            try:
-                pose = self._pose_for(frame)
-                result = await asyncio.to_thread(self.pipeline.process, frame, pose)
-            except BrokenFrame as exc:
-                self.stats.broken += 1
-                self._compute_log.report(logging.WARNING, "broken", self._about(exc))
-                continue
-            except Exception as exc:
-                # A bug in a stage: one line per run of failures, not a traceback per frame
-                # (the traceback is there at DEBUG level).
-                self.stats.broken += 1
-                self._compute_failing = True
-                text = f"head '{self.name}': frame {frame.seq} failed ({exc!r}); dropped"
-                if self._compute_log.report(logging.ERROR, "failed", text):
-                    logger.debug("head '%s': the failure", self.name, exc_info=True)
-                continue
-            self._compute_failing = False
-            self._compute_log.clear()
-            went_back = self.latest is not None and result.t_capture_ns <= self.latest.t_capture_ns
-            if went_back or frame.restarts != self._restarts_seen:
-                # The source started over (a looping recording): what the filter holds is of
-                # another place. Paced sources stamp frames with the clock, so their times
-                # never go back: they count their restarts instead.
-                self.filter.reset()
-                self._restarts_seen = frame.restarts
-            self.latest_scan = self.filter.update(result.scan)
-            self.latest = result
-            self.stats.processed += 1
-            self.stats.latency_ms.append((time.monotonic_ns() - result.t_capture_ns) / 1e6)
+        """Compute task: process the newest frame in worker threads, keep the latest result.
+
+        With ``overlap``, the next frame is matched while the previous one is finished (two
+        worker threads); the matcher takes a new frame only once the finisher has taken the
+        last one, so nothing queues up and the frame it takes is the newest one.
+        """
+        if not self._overlap:
+            while True:
+                frame = await self.slot.get()
+                matched = await self._guarded(frame, self.pipeline.match, frame)
+                if matched is not None:
+                    await self._finish(matched)
+        handoff: asyncio.Queue[Matched] = asyncio.Queue(maxsize=1)
+        taken = asyncio.Event()
+        taken.set()
+
+        async def finisher() -> None:
+            while True:
+                matched = await handoff.get()
+                taken.set()
+                await self._finish(matched)
+
+        finishing = asyncio.create_task(finisher(), name=f"finish-{self.name}")
+        try:
+            while True:
+                await taken.wait()
+                if finishing.done():
+                    finishing.result()  # a finisher that died takes the task with it
+                frame = await self.slot.get()
+                matched = await self._guarded(frame, self.pipeline.match, frame)
+                if matched is not None:
+                    taken.clear()
+                    handoff.put_nowait(matched)
+        finally:
+            finishing.cancel()
+
+    async def _finish(self, matched: Matched) -> None:
+        """Post-process, interpret and publish one matched frame."""
+        frame = matched.frame
+        pose = self._pose_for(frame)
+        result = await self._guarded(frame, self.pipeline.finish, matched, pose)
+        if result is None:
+            return
+        self._compute_failing = False
+        self._compute_log.clear()
+        went_back = self.latest is not None and result.t_capture_ns <= self.latest.t_capture_ns
+        if went_back or frame.restarts != self._restarts_seen:
+            # The source started over (a looping recording): what the filter holds is of
+            # another place. Paced sources stamp frames with the clock, so their times
+            # never go back: they count their restarts instead.
+            self.filter.reset()
+            self._restarts_seen = frame.restarts
+        self.latest_scan = self.filter.update(result.scan)
+        self.latest = result
+        self.stats.processed += 1
+        self.stats.latency_ms.append((time.monotonic_ns() - result.t_capture_ns) / 1e6)
+
+    async def _guarded(
+        self, frame: StereoFrame, stage: Callable[..., _R], *args: object
+    ) -> _R | None:
+        """Run a stage in a worker thread; a failure is counted and logged, and gives None."""
+        try:
+            return await asyncio.to_thread(stage, *args)
+        except BrokenFrame as exc:
+            self.stats.broken += 1
+            self._compute_log.report(logging.WARNING, "broken", self._about(exc))
+        except Exception as exc:
+            # A bug in a stage: one line per run of failures, not a traceback per frame
+            # (the traceback is there at DEBUG level).
+            self.stats.broken += 1
+            self._compute_failing = True
+            text = f"head '{self.name}': frame {frame.seq} failed ({exc!r}); dropped"
+            if self._compute_log.report(logging.ERROR, "failed", text):
+                logger.debug("head '%s': the failure", self.name, exc_info=True)
+        return None
 
     def fresh_scan(self, now_ns: int, max_age_ns: int) -> SectorScan | None:
         """The latest filtered scan if its frame is younger than ``max_age_ns``, else None.

@@ -1,0 +1,167 @@
+"""Stages overlapped across threads: the split pipeline and a head's two-stage compute task."""
+
+from __future__ import annotations
+
+import asyncio
+import threading
+import time
+from concurrent.futures import ThreadPoolExecutor
+from pathlib import Path
+
+import numpy as np
+
+from avoidd.bench.vision import _head, _matcher, synthetic_frames
+from avoidd.config import PerceptionConfig
+from avoidd.daemon.head import Head
+from avoidd.loading import load_all
+from avoidd.pipeline import HeadPipeline, HeadResult, Matched
+from avoidd.types import FramePose, SectorScan, StereoFrame
+
+ROOT = Path(__file__).resolve().parent.parent
+
+
+def test_matching_the_next_frame_while_finishing_this_one_changes_no_result() -> None:
+    """The two halves share nothing mutable: run side by side they give what one thread gives."""
+    frame_set = synthetic_frames(320, 240, 6)
+    pipeline = HeadPipeline(_head(_matcher("sgbm", 64)), frame_set.calibration, 20.0)
+    sequential = [pipeline.process(frame, with_obstacles=True) for frame in frame_set.pairs]
+    overlapped: list[HeadResult] = []
+    with ThreadPoolExecutor(2) as pool:
+        matched = pipeline.match(frame_set.pairs[0])
+        for frame in [*frame_set.pairs[1:], None]:
+            finishing = pool.submit(pipeline.finish, matched, None, True)
+            if frame is not None:
+                matched = pool.submit(pipeline.match, frame).result()
+            overlapped.append(finishing.result())
+    assert [r.seq for r in overlapped] == [r.seq for r in sequential]
+    for one, two in zip(sequential, overlapped, strict=True):
+        np.testing.assert_array_equal(one.scan.distance_m, two.scan.distance_m)
+        np.testing.assert_array_equal(one.depth_m, two.depth_m)
+        assert [o.distance_m for o in one.obstacles] == [o.distance_m for o in two.obstacles]
+        assert set(one.timing_ms) == set(two.timing_ms) >= {"match", "post", "obstacles"}
+
+
+class _SlowPipeline:
+    """Stands in for the vision stages: each half sleeps, and every call is logged."""
+
+    def __init__(self, real: HeadPipeline, stage_s: float) -> None:
+        self.real = real
+        self.stage_s = stage_s
+        self.log: list[tuple[str, int, float, float]] = []  # stage, seq, start, end
+        self.busy = 0
+        self.most_busy = 0
+        self._lock = threading.Lock()
+
+    def _enter(self) -> float:
+        with self._lock:
+            self.busy += 1
+            self.most_busy = max(self.most_busy, self.busy)
+        return time.monotonic()
+
+    def _leave(self, stage: str, seq: int, started: float) -> None:
+        with self._lock:
+            self.busy -= 1
+            self.log.append((stage, seq, started, time.monotonic()))
+
+    def match(self, frame: StereoFrame) -> Matched:
+        started = self._enter()
+        time.sleep(self.stage_s)
+        self._leave("match", frame.seq, started)
+        empty = np.zeros((2, 2), np.float32)
+        return Matched(frame, frame.left, frame.right, None, empty, None, 0, {}, {})
+
+    def finish(self, matched: Matched, pose: FramePose | None = None) -> HeadResult:
+        started = self._enter()
+        time.sleep(self.stage_s)
+        frame = matched.frame
+        self._leave("finish", frame.seq, started)
+        scan = SectorScan(frame.t_capture_ns, np.full(72, np.inf, dtype=np.float32))
+        return HeadResult("front", frame.seq, frame.t_capture_ns, scan, matched.disparity, 1.0, {})
+
+
+def _run_head(overlap: bool, seconds: float) -> tuple[Head, _SlowPipeline, list[int], int]:
+    """A head fed a frame every 5 ms for ``seconds``; its published seqs and frames offered."""
+    config, calibrations = load_all(ROOT / "config" / "demo.yaml")
+    published: list[int] = []
+
+    async def main() -> tuple[Head, _SlowPipeline, int]:
+        loop = asyncio.get_running_loop()
+        stop = threading.Event()
+        head_config = config.heads[0]
+
+        def announce(severity: int, text: str, key: str | None = None) -> None:
+            del severity, text, key
+
+        head = Head(
+            head_config,
+            calibrations[head_config.name],
+            20.0,
+            loop,
+            stop,
+            announce,
+            PerceptionConfig(),
+            lambda frame: FramePose(0.0, 0.0, 1.5, "test", "test"),
+            lambda *args, **kwargs: None,  # type: ignore[arg-type,return-value]
+            overlap=overlap,
+        )
+        slow = _SlowPipeline(head.pipeline, 0.04)
+        head.pipeline = slow  # type: ignore[assignment]
+        image = np.zeros((480, 640), np.uint8)
+        offered = 0
+
+        def feed() -> None:
+            nonlocal offered
+            end = time.monotonic() + seconds
+            while time.monotonic() < end:
+                head.slot.put(StereoFrame(offered, time.monotonic_ns(), image, image))
+                offered += 1
+                time.sleep(0.005)
+
+        task = asyncio.create_task(head.compute())
+        last: HeadResult | None = None
+
+        async def watch() -> None:
+            nonlocal last
+            while True:
+                if head.latest is not last and head.latest is not None:
+                    last = head.latest
+                    published.append(last.seq)
+                await asyncio.sleep(0.001)
+
+        watcher = asyncio.create_task(watch())
+        await asyncio.to_thread(feed)
+        await asyncio.sleep(0.2)
+        task.cancel()
+        watcher.cancel()
+        await asyncio.gather(task, watcher, return_exceptions=True)
+        return head, slow, offered
+
+    head, slow, offered = asyncio.run(main())
+    return head, slow, published, offered
+
+
+def test_overlapped_head_matches_the_next_frame_while_finishing_and_keeps_order() -> None:
+    head, slow, published, offered = _run_head(overlap=True, seconds=1.5)
+    matches = [(seq, s, e) for stage, seq, s, e in slow.log if stage == "match"]
+    finishes = [(seq, s, e) for stage, seq, s, e in slow.log if stage == "finish"]
+    # The two halves ran side by side.
+    assert slow.most_busy == 2
+    overlapping = sum(1 for _, ms, me in matches for _, fs, fe in finishes if ms < fe and fs < me)
+    assert overlapping >= len(finishes) // 2
+    # Results keep their order, and each frame is finished once, after its match.
+    finished = [seq for seq, _, _ in sorted(finishes, key=lambda f: f[1])]
+    assert finished == sorted(finished) and len(set(finished)) == len(finished)
+    assert published == sorted(published) and len(set(published)) == len(published)
+    matched_at = {seq: e for seq, _, e in matches}
+    assert all(matched_at[seq] <= s for seq, s, _ in finishes)
+    # Latest wins: the camera is faster than the stages; frames are skipped, never queued.
+    assert head.slot.skipped > offered // 2
+    assert len(matches) - len(finishes) <= 2
+    assert head.stats.processed == len(finishes)
+
+
+def test_head_without_overlap_runs_one_stage_at_a_time() -> None:
+    head, slow, published, _ = _run_head(overlap=False, seconds=0.8)
+    assert slow.most_busy == 1
+    assert published == sorted(published) and len(published) >= 3
+    assert head.stats.processed == sum(1 for stage, *_ in slow.log if stage == "finish")
