@@ -216,6 +216,11 @@ def test_readers_of_every_layout(tmp_path: Path) -> None:
     toy = scenes["m14/Toy"]
     assert toy.calib == Calib(500.0, 0.12, 5.0) and toy.num_disparities == 48
     assert np.nanmax(scenes["m01/tsukuba"].truth_px) == 5.0
+    # The search range comes from the encoding (value / 16 holds at most 15.9 px; value / 8,
+    # 31.9; value / 4, 63.75), never from the truth's own maximum (5, 10 and 20 px here).
+    assert scenes["m01/tsukuba"].num_disparities == 16
+    assert scenes["m01/venus"].num_disparities == 32
+    assert scenes["m03/cones"].num_disparities == 64
     venus_truth = scenes["m01/venus"].truth_px
     assert np.isnan(venus_truth[5, 5]) and venus_truth[0, 0] == 10.0
     assert scenes["m03/cones"].truth_px[0, 0] == 20.0
