@@ -229,9 +229,10 @@ def evaluate(
             break
     if not scenes:
         raise ConfigError(no_scene_lines(path))
+    if threads is None:
+        return _run(scenes, matchers, region, cv2.getNumThreads())
     previous_threads = cv2.getNumThreads()
-    if threads is not None:
-        cv2.setNumThreads(threads)
+    cv2.setNumThreads(threads)
     try:
         return _run(scenes, matchers, region, cv2.getNumThreads())
     finally:
