@@ -216,6 +216,11 @@ def test_readers_of_every_layout(tmp_path: Path) -> None:
     toy = scenes["m14/Toy"]
     assert toy.calib == Calib(500.0, 0.12, 5.0) and toy.num_disparities == 48
     assert np.nanmax(scenes["m01/tsukuba"].truth_px) == 5.0
+    # The search range comes from the encoding (value / 16 holds at most 15.9 px; value / 8,
+    # 31.9; value / 4, 63.75), never from the truth's own maximum (5, 10 and 20 px here).
+    assert scenes["m01/tsukuba"].num_disparities == 16
+    assert scenes["m01/venus"].num_disparities == 32
+    assert scenes["m03/cones"].num_disparities == 64
     venus_truth = scenes["m01/venus"].truth_px
     assert np.isnan(venus_truth[5, 5]) and venus_truth[0, 0] == 10.0
     assert scenes["m03/cones"].truth_px[0, 0] == 20.0
@@ -297,6 +302,22 @@ def test_eval_on_middlebury_2001_and_2003(data_dir: Path) -> None:
         # 97.1 -> 85.9 on 2001 and 89.4 -> 80.8 on 2003; an earlier gate, since replaced, that
         # estimated noise over the whole image left 57 and 59).
         assert gated.mean.density >= run.mean.density - 15.0, (dataset, gated.mean)
+
+
+def test_eval_where_both_cameras_see_on_middlebury_2014(data_dir: Path) -> None:
+    # The baseline for improving the matcher right of the border band (docs/stereo.md,
+    # "Where both cameras see"); measured bad-2 / density: opencv-sgbm 23.2 / 87.3, sgbm
+    # 21.4 / 90.7 over columns >= ndisp, against 33.5 / 75.6 and 25.8 / 86.0 over all.
+    runs = {
+        r.matcher: r
+        for r in evaluate(data_dir / "middlebury2014_Q", ["opencv-sgbm", "sgbm"], region="overlap")
+    }
+    baseline, ours = runs["opencv-sgbm"].mean, runs["sgbm"].mean
+    assert 21.5 <= baseline.bad2 <= 25.0 and 85.5 <= baseline.density <= 89.0  # regression bound
+    assert ours.bad2 <= 23.0 and ours.density >= 89.0  # regression bound
+    # Leaving out the band, where bare SGBM has nothing, raises the baseline's density most.
+    assert ours.density - baseline.density < 86.0 - 75.6
+    assert runs["sgbm"].num_disparities[0] == 80  # Adirondack's calib.txt ndisp, not its truth
 
 
 def test_default_post_processing_does_no_harm_on_real_images(data_dir: Path) -> None:

@@ -4,10 +4,13 @@ from __future__ import annotations
 
 import argparse
 import json
+import sys
 from pathlib import Path
 
-from avoidd.commands import EXIT_OK
+from avoidd.commands import EXIT_CONFIG, EXIT_OK
+from avoidd.errors import ConfigError
 from avoidd.evaluation.edges import edge_suite, format_edges, run_edge_case
+from avoidd.evaluation.metrics import REGIONS
 from avoidd.evaluation.near import format_near, near_suite, run_near_case
 from avoidd.evaluation.run import evaluate, format_details, format_runs
 from avoidd.evaluation.scenes import SuiteSummary, contact_suite, draws, run_case, suite
@@ -27,6 +30,28 @@ def configure(name: str, parser: argparse.ArgumentParser) -> None:
             "opencv-sgbm; repeat",
         )
         parser.add_argument("--max-scenes", type=int, help="stop after N scenes")
+        parser.add_argument(
+            "--region",
+            choices=REGIONS,
+            default="all",
+            help="pixels scored: all with ground truth (default), or overlap: only columns >= "
+            "the search range, which both cameras see (bare SGBM leaves the band left of it "
+            "empty)",
+        )
+        parser.add_argument(
+            "--num-disparities",
+            type=_positive,
+            metavar="N",
+            help="search range for every scene, rounded up to a multiple of 16; default: the "
+            "dataset's ndisp (Middlebury 2014 calib.txt), else the largest disparity its "
+            "ground-truth encoding holds, else 192 (KITTI); never the ground truth's values",
+        )
+        parser.add_argument(
+            "--threads",
+            type=_positive,
+            metavar="N",
+            help="OpenCV threads while matching (restored after); the tables say the count",
+        )
         parser.add_argument("--json", type=Path, help="also write the scores as JSON")
         parser.add_argument(
             "--detail",
@@ -56,9 +81,31 @@ def configure(name: str, parser: argparse.ArgumentParser) -> None:
         parser.set_defaults(handler=run_eval_perception)
 
 
+def _positive(text: str) -> int:
+    value = int(text)
+    if value < 1:
+        raise argparse.ArgumentTypeError(f"{value}: must be 1 or more")
+    return value
+
+
 def run_eval(args: argparse.Namespace) -> int:
-    """Score the matchers and print (and optionally write) the table."""
-    runs = evaluate(args.path, args.matcher or ["sgbm"], args.max_scenes)
+    """Score the matchers and print (and optionally write) the table.
+
+    A fault in what was asked (no scene, an unknown matcher) is printed as it is, with exit
+    code 2: ``eval`` starts nothing, so the generic "configuration invalid" line would mislead.
+    """
+    try:
+        runs = evaluate(
+            args.path,
+            args.matcher or ["sgbm"],
+            args.max_scenes,
+            region=args.region,
+            num_disparities=args.num_disparities,
+            threads=args.threads,
+        )
+    except ConfigError as exc:
+        print("\n".join(exc.lines), file=sys.stderr)
+        return EXIT_CONFIG
     print(format_runs(runs))
     if args.detail:
         print(format_details(runs))

@@ -7,9 +7,32 @@ from dataclasses import asdict, dataclass
 import numpy as np
 
 from avoidd.evaluation.datasets import Calib
-from avoidd.types import FloatArray
+from avoidd.types import BoolArray, FloatArray
 
 THRESHOLDS_PX = (1.0, 2.0, 4.0)
+
+REGIONS = ("all", "overlap")
+"""Pixels scored: ``all`` with ground truth, or only those in the ``overlap`` both views see."""
+
+
+def region_mask(shape: tuple[int, ...], num_disparities: int, region: str) -> BoolArray:
+    """The pixels of a left view that ``region`` scores.
+
+    Args:
+        shape: The view's shape, (H, W) or (H, W, C).
+        num_disparities: The search range: the first ``num_disparities`` columns are the left
+            border band, where a match over the whole range would fall outside the right view.
+        region: ``all`` (every pixel) or ``overlap`` (columns ``num_disparities`` and right).
+
+    Raises:
+        ValueError: An unknown region.
+    """
+    if region not in REGIONS:
+        raise ValueError(f"region {region!r}: use one of {', '.join(REGIONS)}")
+    mask = np.ones(shape[:2], dtype=bool)
+    if region == "overlap":
+        mask[:, :num_disparities] = False
+    return mask
 
 
 @dataclass(frozen=True)
@@ -40,15 +63,27 @@ class Scores:
         return asdict(self)
 
 
-def score(estimate: FloatArray, truth: FloatArray, calib: Calib | None, ms: float) -> Scores:
+def score(
+    estimate: FloatArray,
+    truth: FloatArray,
+    calib: Calib | None,
+    ms: float,
+    region: BoolArray | None = None,
+) -> Scores:
     """Score a disparity map against ground truth (NaN = none, in both).
 
-    Every pixel with ground truth counts, including the left border band a matcher cannot fill.
+    Every pixel with ground truth in ``region`` counts (default: the whole view, including the
+    left border band a matcher cannot fill; see :func:`region_mask`).
+
+    Raises:
+        ValueError: No pixel of ``region`` has ground truth.
     """
     known = np.isfinite(truth)
+    if region is not None:
+        known &= region
     total = int(known.sum())
     if total == 0:
-        raise ValueError("the ground truth has no valid pixel")
+        raise ValueError("the ground truth has no valid pixel in the scored region")
     have = known & np.isfinite(estimate)
     error = np.abs(estimate[have] - truth[have])
     bads = [100.0 * (total - int((error <= t).sum())) / total for t in THRESHOLDS_PX]

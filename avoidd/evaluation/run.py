@@ -19,13 +19,15 @@ from avoidd.config import (
     SgbmConfig,
 )
 from avoidd.errors import ConfigError
-from avoidd.evaluation.datasets import Scene, find_scenes
+from avoidd.evaluation.datasets import Scene, find_scenes, no_scene_lines
 from avoidd.evaluation.metrics import (
+    REGIONS,
     Details,
     Scores,
     details,
     mean_details,
     mean_scores,
+    region_mask,
     score,
 )
 from avoidd.progress import Progress
@@ -141,12 +143,23 @@ MATCHERS: dict[str, tuple[str, Callable[[int], Compute]]] = {
 
 @dataclass
 class Run:
-    """One matcher's results over the scenes."""
+    """One matcher's results over the scenes.
+
+    Attributes:
+        matcher: The matcher's name in :data:`MATCHERS`.
+        region: The pixels scored, ``all`` or ``overlap`` (see :func:`region_mask`).
+        threads: OpenCV's thread count while the matcher ran (its ``ms`` were timed so).
+        scenes: Per scene, its name and scores.
+        num_disparities: Per scene, the search range used.
+        details: Per scene, in the order of ``scenes``.
+    """
 
     matcher: str
+    region: str = "all"
+    threads: int = 1
     scenes: list[tuple[str, Scores]] = field(default_factory=list)
+    num_disparities: list[int] = field(default_factory=list)
     details: list[Details] = field(default_factory=list)
-    """Per scene, in the order of ``scenes``."""
 
     @property
     def mean(self) -> Scores:
@@ -154,10 +167,19 @@ class Run:
         return mean_scores([s for _, s in self.scenes])
 
     def as_json(self) -> dict[str, Any]:
-        """``{"matcher", "scenes": [{"scene", scores...}], "mean": {scores...}}``."""
+        """The run as JSON.
+
+        ``{"matcher", "region", "threads", "scenes": [{"scene", "num_disparities", scores...}],
+        "mean": {scores...}}``.
+        """
         return {
             "matcher": self.matcher,
-            "scenes": [{"scene": name, **_rounded(s)} for name, s in self.scenes],
+            "region": self.region,
+            "threads": self.threads,
+            "scenes": [
+                {"scene": name, "num_disparities": n, **_rounded(s)}
+                for (name, s), n in zip(self.scenes, self.num_disparities, strict=True)
+            ],
             "mean": _rounded(self.mean),
         }
 
@@ -166,38 +188,82 @@ def _rounded(scores: Scores) -> dict[str, float | None]:
     return {k: (round(v, 3) if v is not None else None) for k, v in scores.as_dict().items()}
 
 
-def evaluate(path: Path, matchers: list[str], max_scenes: int | None = None) -> list[Run]:
+def evaluate(
+    path: Path,
+    matchers: list[str],
+    max_scenes: int | None = None,
+    *,
+    region: str = "all",
+    num_disparities: int | None = None,
+    threads: int | None = None,
+) -> list[Run]:
     """Run each named matcher on every scene found under ``path``.
 
+    Args:
+        path: A scene folder, a dataset folder, or a folder of them.
+        matchers: Names in :data:`MATCHERS`.
+        max_scenes: Stop after this many scenes.
+        region: Pixels scored: ``all``, or ``overlap`` (right of the left border band).
+        num_disparities: Search range for every scene (rounded up to 16); default: per
+            dataset, never from the ground truth (see :mod:`avoidd.evaluation.datasets`).
+        threads: OpenCV threads for the run (``cv2.setNumThreads``), restored afterwards;
+            default: OpenCV's current setting.
+
     Raises:
-        ConfigError: Unknown matcher name, or no scene found.
+        ConfigError: Unknown matcher name or region, a bad number, or no scene found.
     """
     unknown = [m for m in matchers if m not in MATCHERS]
     if unknown:
         raise ConfigError(
             [f"--matcher {', '.join(unknown)}: unknown; use one of {', '.join(MATCHERS)}"]
         )
+    if region not in REGIONS:
+        raise ConfigError([f"--region {region}: unknown; use one of {', '.join(REGIONS)}"])
+    for option, value in (("--num-disparities", num_disparities), ("--threads", threads)):
+        if value is not None and value < 1:
+            raise ConfigError([f"{option} {value}: must be 1 or more"])
     scenes: list[Scene] = []
-    for scene in find_scenes(path):
+    for scene in find_scenes(path, num_disparities=num_disparities):
         scenes.append(scene)
         if max_scenes is not None and len(scenes) >= max_scenes:
             break
     if not scenes:
-        raise ConfigError(
-            [f"{path}: no stereo scene with ground truth found (Middlebury or KITTI layout)"]
-        )
-    runs = [Run(name) for name in matchers]
-    progress = Progress(len(scenes) * len(matchers))
-    for scene in scenes:
-        left, right = to_grey(scene.left), to_grey(scene.right)
-        for run in runs:
-            compute = MATCHERS[run.matcher][1](scene.num_disparities)
-            started = time.perf_counter()
-            disparity = compute(left, right)
-            ms = (time.perf_counter() - started) * 1000.0
-            run.scenes.append((scene.name, score(disparity, scene.truth_px, scene.calib, ms)))
-            run.details.append(details(disparity, scene.truth_px, scene.num_disparities))
-            progress.step(f"{run.matcher} {scene.name}")
+        raise ConfigError(no_scene_lines(path))
+    if threads is None:
+        return _run(scenes, matchers, region, cv2.getNumThreads())
+    previous_threads = cv2.getNumThreads()
+    cv2.setNumThreads(threads)
+    try:
+        return _run(scenes, matchers, region, cv2.getNumThreads())
+    finally:
+        cv2.setNumThreads(previous_threads)
+
+
+def _run(scenes: list[Scene], matchers: list[str], region: str, threads: int) -> list[Run]:
+    runs = [Run(name, region, threads) for name in matchers]
+    with Progress(len(scenes) * len(matchers)) as progress:
+        for scene in scenes:
+            left, right = to_grey(scene.left), to_grey(scene.right)
+            scored = region_mask(scene.truth_px.shape, scene.num_disparities, region)
+            if not (scored & np.isfinite(scene.truth_px)).any():
+                raise ConfigError(
+                    [
+                        f"{scene.name}: no pixel with ground truth right of the first "
+                        f"{scene.num_disparities} columns (--region {region}); give a smaller "
+                        "--num-disparities"
+                    ]
+                )
+            for run in runs:
+                compute = MATCHERS[run.matcher][1](scene.num_disparities)
+                started = time.perf_counter()
+                disparity = compute(left, right)
+                ms = (time.perf_counter() - started) * 1000.0
+                run.scenes.append(
+                    (scene.name, score(disparity, scene.truth_px, scene.calib, ms, scored))
+                )
+                run.num_disparities.append(scene.num_disparities)
+                run.details.append(details(disparity, scene.truth_px, scene.num_disparities))
+                progress.step(f"{run.matcher} {scene.name}")
     return runs
 
 
@@ -222,16 +288,26 @@ def format_runs(runs: list[Run]) -> str:
     """A table per matcher: one row per scene and the mean."""
     lines: list[str] = []
     header = (
-        f"{'scene':<30} {'bad1':>6} {'bad2':>6} {'bad4':>6} {'dens':>6} {'avgerr':>7} "
-        f"{'Z>10%':>6} {'ms':>7}"
+        f"{'scene':<30} {'ndisp':>5} {'bad1':>6} {'bad2':>6} {'bad4':>6} {'dens':>6} "
+        f"{'avgerr':>7} {'Z>10%':>6} {'ms':>7}"
     )
     for run in runs:
-        lines += [f"matcher {run.matcher}: {MATCHERS[run.matcher][0]}", header]
-        for name, s in [*run.scenes, ("MEAN", run.mean)]:
+        region = (
+            "all pixels with ground truth"
+            if run.region == "all"
+            else "overlap only (columns >= ndisp)"
+        )
+        lines += [
+            f"matcher {run.matcher}: {MATCHERS[run.matcher][0]}",
+            f"scored: {region}; ms with {run.threads} OpenCV thread(s)",
+            header,
+        ]
+        rows = [(*scene, str(n)) for scene, n in zip(run.scenes, run.num_disparities, strict=True)]
+        for name, s, ndisp in [*rows, ("MEAN", run.mean, "")]:
             depth = f"{s.depth_bad10:6.1f}" if s.depth_bad10 is not None else f"{'-':>6}"
             lines.append(
-                f"{name:<30} {s.bad1:6.1f} {s.bad2:6.1f} {s.bad4:6.1f} {s.density:6.1f} "
-                f"{s.avgerr:7.2f} {depth} {s.ms:7.1f}"
+                f"{name:<30} {ndisp:>5} {s.bad1:6.1f} {s.bad2:6.1f} {s.bad4:6.1f} "
+                f"{s.density:6.1f} {s.avgerr:7.2f} {depth} {s.ms:7.1f}"
             )
         lines.append("")
     return "\n".join(lines)
