@@ -322,7 +322,14 @@ def _format_error(doc: YamlDocument, err: ErrorDetails, names: set[str]) -> str:
     if kind == "extra_forbidden":
         key = str(path[-1]) if path else ""
         close = difflib.get_close_matches(key, sorted(names), n=1, cutoff=0.6)
-        hint = f"did you mean '{close[0]}'?" if close else "remove it or check the spelling"
+        if key in names:
+            # Spelt right, but a key of another section or source kind (a files source
+            # given a synthetic camera's seed): suggesting itself would not help.
+            hint = "a key of another section or kind, not of this one; remove it here"
+        elif close:
+            hint = f"did you mean '{close[0]}'?"
+        else:
+            hint = "remove it or check the spelling"
         return f"{doc.path}:{line}: {_format_path(path)}: unknown key; {hint}"
     if kind == "union_tag_invalid":
         ctx = err.get("ctx", {})

@@ -115,6 +115,12 @@ def test_shipped_configs_validate(name: str) -> None:
             "did you mean 'num_disparities'?",
         ),
         (
+            "fps: 15",
+            "fps: 15\n      path: frames",
+            "avoidd.yaml:8: heads[0].source.path: unknown key; a key of another section "
+            "or kind, not of this one; remove it here",
+        ),
+        (
             "num_disparities: 64",
             "num_disparities: 60",
             "avoidd.yaml:9: heads[0].matcher.num_disparities: must be a multiple of 16; "
