@@ -11,11 +11,9 @@ process is left behind even when a test fails.
 from __future__ import annotations
 
 import asyncio
-import contextlib
 import logging
 import os
 import shutil
-import signal
 import socket
 import tempfile
 from pathlib import Path
@@ -23,6 +21,7 @@ from types import TracebackType
 
 from avoidd.errors import LinkError
 from avoidd.sim.gcs import GroundStation
+from avoidd.sim.process import end_process_group
 
 logger = logging.getLogger(__name__)
 
@@ -135,15 +134,7 @@ class ArduPilotSitl:
             self.gcs = None
         process = self.process
         self.process = None
-        if process is not None and process.returncode is None:
-            with contextlib.suppress(ProcessLookupError):
-                os.killpg(process.pid, signal.SIGTERM)
-            try:
-                await asyncio.wait_for(process.wait(), 3.0)
-            except TimeoutError:
-                with contextlib.suppress(ProcessLookupError):
-                    os.killpg(process.pid, signal.SIGKILL)
-                await process.wait()
+        await end_process_group(process)
         if self._workdir is not None:
             shutil.rmtree(self._workdir, ignore_errors=True)
             self._workdir = None

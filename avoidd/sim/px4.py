@@ -20,11 +20,9 @@ work folder, so nothing is left behind even when a test fails.
 from __future__ import annotations
 
 import asyncio
-import contextlib
 import logging
 import os
 import shutil
-import signal
 import socket
 import tempfile
 import time
@@ -33,6 +31,7 @@ from types import TracebackType
 
 from avoidd.errors import LinkError
 from avoidd.sim.gcs import GroundStation
+from avoidd.sim.process import end_process_group
 
 logger = logging.getLogger(__name__)
 
@@ -203,15 +202,7 @@ class Px4Sitl:
     async def _kill(self) -> None:
         process = self.process
         self.process = None
-        if process is not None and process.returncode is None:
-            with contextlib.suppress(ProcessLookupError):
-                os.killpg(process.pid, signal.SIGTERM)
-            try:
-                await asyncio.wait_for(process.wait(), 3.0)
-            except TimeoutError:
-                with contextlib.suppress(ProcessLookupError):
-                    os.killpg(process.pid, signal.SIGKILL)
-                await process.wait()
+        await end_process_group(process)
         if self._root is not None:
             shutil.rmtree(self._root, ignore_errors=True)
             self._root = None

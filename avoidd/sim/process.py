@@ -1,0 +1,32 @@
+"""Ending a SITL autopilot that runs in its own process group."""
+
+from __future__ import annotations
+
+import asyncio
+import contextlib
+import os
+import signal
+
+
+async def end_process_group(
+    process: asyncio.subprocess.Process | None, grace_s: float = 3.0
+) -> None:
+    """SIGTERM a process's group, then SIGKILL it if it has not ended within ``grace_s``.
+
+    The process must have been started with ``start_new_session=True`` (its pid is its
+    group's id), so that helpers it started end with it.
+
+    Args:
+        process: The process, or None (nothing to do).
+        grace_s: Seconds between the polite and the forced signal.
+    """
+    if process is None or process.returncode is not None:
+        return
+    with contextlib.suppress(ProcessLookupError):
+        os.killpg(process.pid, signal.SIGTERM)
+    try:
+        await asyncio.wait_for(process.wait(), grace_s)
+    except TimeoutError:
+        with contextlib.suppress(ProcessLookupError):
+            os.killpg(process.pid, signal.SIGKILL)
+        await process.wait()
