@@ -183,6 +183,73 @@ async def test_px4_collision_prevention_stops_a_pushed_vehicle_on_avoidd_data(
     assert mismatched <= 0.05 * checked
 
 
+async def test_px4_blocks_motion_into_bins_avoidd_reports_unknown_after_its_camera_is_lost(
+    px4_sitl_dir: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    """Position mode, CP_GO_NO_DATA 0: full forward stick while avoidd's camera is unplugged.
+
+    avoidd sends every bin as unknown (65535) once its data is stale, PX4's merged map holds no
+    reading, and the vehicle stays put; with the camera back it flies on and stops at the wall.
+    """
+    sent: list[tuple[int, Any]] = []
+    build = Outputs.obstacle_distance_message
+
+    def recording(self: Outputs, now_ns: int) -> Any:
+        message = build(self, now_ns)
+        if message is not None:
+            sent.append((time.monotonic_ns(), message))
+        return message
+
+    monkeypatch.setattr(Outputs, "obstacle_distance_message", recording)
+    t0 = time.monotonic()
+    scenario = load_scenario(SCENARIOS / "blind-push.yaml")
+    replug_s = next(a.t_s for a in scenario.timeline if a.action == "camera_replug")
+    run = Px4Run(scenario, px4_sitl_dir, mode="push", cp_dist_m=2.0, params={"CP_GO_NO_DATA": 0})
+    summary = await run.run()
+    gcs = run.gcs
+    assert gcs is not None and run._t0_ns > 0
+    push_ns = run._t0_ns
+    pushed = [s for s in summary.samples if s.t_s >= 0.0]
+    start_north = pushed[0].north_m
+    # Unplugged at 0 s: avoidd's data is stale after its max age (0.3 s), and PX4 keeps a bin
+    # for 0.5 s after its last reading; meanwhile full stick accelerates the vehicle, which
+    # then brakes. From 3 s on it must hold still until the camera is back.
+    stopping = [s for s in pushed if s.t_s < 3.0]
+    held = [s for s in pushed if 3.0 <= s.t_s <= replug_s]
+    stop_travel = max(s.north_m for s in stopping) - start_north
+    held_travel = max(s.north_m for s in held) - min(s.north_m for s in held)
+    total_travel = max(s.north_m for s in pushed) - start_north
+    closest = min(pushed, key=lambda s: s.clearance_m)
+    print(
+        f"\nblind push: stopped after {stop_travel:.2f} m (top speed "
+        f"{max(s.speed_m_s for s in stopping):.2f} m/s), then {held_travel:.2f} m of drift over "
+        f"{replug_s - 3:.0f} s at full stick (top speed {max(s.speed_m_s for s in held):.2f} "
+        f"m/s); with the camera back {total_travel:.2f} m in all, closest edge "
+        f"{closest.clearance_m:.2f} m; test {time.monotonic() - t0:.0f} s"
+    )
+    # avoidd said "unknown" in every bin while blind (within its max age of the unplug).
+    unknown = [m for t, m in sent if push_ns + 1_000_000_000 <= t <= push_ns + replug_s * 1e9]
+    assert len(unknown) >= 50
+    assert all(set(_folded(m.distances)) == {UNKNOWN_CM} for m in unknown)
+    # PX4's merged map held no reading in that time.
+    echoes = [
+        h.message
+        for h in gcs.heard
+        if h.message.get_type() == "OBSTACLE_DISTANCE"
+        and gcs.from_autopilot(h.message)
+        and push_ns + 2_000_000_000 <= h.received_ns <= push_ns + replug_s * 1e9
+    ]
+    assert len(echoes) >= 10
+    assert all(min(_folded(e.distances)) > e.max_distance for e in echoes)
+    # Full stick, and the vehicle did not move into the unknown.
+    assert stop_travel < 4.0
+    assert held_travel < 0.6 and max(s.speed_m_s for s in held) < 0.8
+    # With the camera back, it flew on and collision prevention stopped it at the wall.
+    assert not summary.collided
+    assert total_travel > 4.0
+    assert closest.clearance_m + scenario.avoidance.vehicle_radius_m > 1.5
+
+
 # The planner's closed loop on PX4 (OFFBOARD round the wall, then Position mode stops the
 # setpoints) is measured with `avoidd sim px4 sitl/px4/wall-around.yaml`, not tested here yet:
 # on this 2-core machine its clearance is not held under CPU load (edge clearance 0.12 m with

@@ -79,6 +79,61 @@ async def test_lost_camera_is_reopened_with_backoff_and_reported(tmp_path: Path)
     assert texts.count("avoidd: front camera back") == 2
 
 
+class SilentCamera:
+    """Opens, but every read fails (a camera that enumerates and streams nothing)."""
+
+    description = "silent camera"
+
+    def read(self) -> StereoFrame:
+        raise SourceError("camera 'front': no frame within 1 s")
+
+    def close(self) -> None:
+        pass
+
+
+async def test_a_camera_that_opens_but_gives_no_frame_stays_lost_without_flapping(
+    tmp_path: Path, caplog: pytest.LogCaptureFixture
+) -> None:
+    """Reopened with backoff, said lost once (log and STATUSTEXT), never "back" until a frame
+    arrives; then back once."""
+    opens: list[float] = []
+    loop = asyncio.get_running_loop()
+
+    def silent_open(*args: Any, **kwargs: Any) -> Any:
+        opens.append(loop.time())
+        if len(opens) <= 4:
+            return SilentCamera()
+        return real_open_source(*args, **kwargs)
+
+    peer = await open_udp_peer()
+    config, calibrations = load_all(synthetic_config(tmp_path, f"udpout:127.0.0.1:{peer.port}"))
+    daemon = Daemon(config, calibrations, open_source=silent_open)
+    task = asyncio.create_task(daemon.run())
+    try:
+        assert await wait_for(lambda: len(opens) >= 4, 20.0), f"opened {len(opens)} times"
+        texts = [m.text for m in peer.of_type("STATUSTEXT")]
+        assert texts.count("avoidd: front camera lost") == 1
+        assert "avoidd: front camera back" not in texts
+        head = daemon.heads[0]
+        assert await wait_for(lambda: head.stats.processed > 3, 15.0)
+        assert await wait_for(
+            lambda: any("camera back" in m.text for m in peer.of_type("STATUSTEXT")), 5.0
+        )
+    finally:
+        daemon.stop()
+        assert await asyncio.wait_for(task, timeout=10.0) == 0
+        peer.close()
+    texts = [m.text for m in peer.of_type("STATUSTEXT")]
+    assert texts.count("avoidd: front camera lost") == 1
+    assert texts.count("avoidd: front camera back") == 1
+    assert daemon.heads[0].stats.restarts == 1
+    gaps = np.diff(opens[:4])
+    assert gaps[0] >= 0.45 and gaps[1] >= 0.95 and gaps[2] >= 1.95  # backoff doubles
+    lost_lines = [r for r in caplog.records if "source lost" in r.getMessage()]
+    # One line, then one summary of the repeats (not a line per attempt).
+    assert len(lost_lines) == 2 and "repeated 3 times" in lost_lines[1].getMessage()
+
+
 async def test_a_dead_task_stops_the_daemon_with_an_error(
     tmp_path: Path, monkeypatch: pytest.MonkeyPatch
 ) -> None:

@@ -184,17 +184,9 @@ class Head:
                     self._stop.wait(backoff_s)
                     backoff_s = min(backoff_s * 2, high_s)
                     continue
-                if lost:
-                    self.stats.restarts += 1
-                    self._announce(
-                        mav.MAV_SEVERITY_NOTICE,
-                        f"avoidd: {self.name} camera back",
-                        f"camera {self.name}",
-                    )
-                    lost = False
-                self._capture_log.clear()
+                if not lost:
+                    self._capture_log.clear()
                 logger.info("head '%s': reading %s", self.name, source.description)
-                backoff_s = low_s
             try:
                 frame = self._read(source)
                 self.pipeline.check_frame(frame)  # wrong size or pixel format: dropped here
@@ -208,20 +200,37 @@ class Head:
                 self.ended = True
                 break
             except Exception as exc:
+                # A camera that opens but gives no frame stays lost: one line per run of
+                # failed reopenings, and "back" is said only once a frame arrives.
                 self.stats.source_errors += 1
-                logger.error("head '%s': source lost (%s); reopening", self.name, exc)
-                self._announce(
-                    mav.MAV_SEVERITY_CRITICAL,
-                    f"avoidd: {self.name} camera lost",
-                    f"camera {self.name}",
+                self._capture_log.report(
+                    logging.ERROR,
+                    "source lost",
+                    f"head '{self.name}': source lost ({exc}); reopening with backoff",
                 )
-                lost = True
+                if not lost:
+                    self._announce(
+                        mav.MAV_SEVERITY_CRITICAL,
+                        f"avoidd: {self.name} camera lost",
+                        f"camera {self.name}",
+                    )
+                    lost = True
                 with contextlib.suppress(Exception):
                     source.close()
                 source = None
                 self._stop.wait(backoff_s)
                 backoff_s = min(backoff_s * 2, high_s)
                 continue
+            if lost:
+                self.stats.restarts += 1
+                self._announce(
+                    mav.MAV_SEVERITY_NOTICE,
+                    f"avoidd: {self.name} camera back",
+                    f"camera {self.name}",
+                )
+                lost = False
+                self._capture_log.clear(f"head '{self.name}': frames arriving again")
+                backoff_s = low_s
             self._frame_good()
             if not self.frame_check.usable(frame):
                 self.stats.broken += 1  # frozen or blind: no news (logged by the check)

@@ -23,7 +23,7 @@ from avoidd.errors import BrokenFrame, SourceError
 from avoidd.mavlink.vehicle import Vehicle
 from avoidd.sim.render import StereoRenderer
 from avoidd.sim.world import World
-from avoidd.sources.base import Pacer
+from avoidd.sources.base import FrameSource, Pacer
 from avoidd.types import Mount, RectifiedRig, StereoFrame
 
 
@@ -185,3 +185,32 @@ def open_sim_source(
     renderer = StereoRenderer(world, rig, mount, config.noise_std)
     pose_at = vehicle_pose(vehicle, config.origin_ne_m)
     return PoseRenderedSource(renderer, pose_at, config.fps, seed=world.seed)
+
+
+class UnpluggableSource:
+    """A frame source that fails while a scenario has the camera unplugged.
+
+    Args:
+        source: The camera.
+        plugged: One flag, shared with the scenario's timeline (False: unplugged).
+    """
+
+    def __init__(self, source: FrameSource, plugged: list[bool]) -> None:
+        self._source = source
+        self._plugged = plugged
+
+    @property
+    def description(self) -> str:
+        """The camera's description."""
+        return self._source.description
+
+    def read(self) -> StereoFrame:
+        """The camera's next frame; SourceError while unplugged."""
+        if not self._plugged[0]:
+            time.sleep(0.1)
+            raise SourceError("camera unplugged (scenario timeline)")
+        return self._source.read()
+
+    def close(self) -> None:
+        """Close the camera."""
+        self._source.close()

@@ -33,7 +33,12 @@ from avoidd.errors import LinkError
 from avoidd.mavlink import codec as mav
 from avoidd.sim.external import ExternalRun, ExternalSummary, Mode, daemon_config
 from avoidd.sim.gcs import GroundStation
-from avoidd.sim.pose_source import PoseRenderedSource, VehiclePose, vehicle_pose
+from avoidd.sim.pose_source import (
+    PoseRenderedSource,
+    UnpluggableSource,
+    VehiclePose,
+    vehicle_pose,
+)
 from avoidd.sim.px4 import ONBOARD_PORT, Px4Sitl
 from avoidd.sim.render import StereoRenderer
 from avoidd.sources.base import FrameSource
@@ -89,6 +94,13 @@ class Px4Run(ExternalRun):
         self.estimator_s = 0.0
         self.gcs: GroundStation | None = None
         """The ground station of the run (what it heard stays readable after the run)."""
+        self._plugged = [True]
+        unsupported = [a.action for a in scenario.timeline if not a.action.startswith("camera_")]
+        if unsupported:
+            raise LinkError(
+                f"scenario {scenario.name}: a PX4 run plays camera_unplug and camera_replug "
+                f"from its timeline, not {', '.join(sorted(set(unsupported)))}; remove them"
+            )
 
     async def run(self, port: int = ONBOARD_PORT) -> ExternalSummary:
         """Start PX4 and avoidd, fly the scenario, stop everything; the summary.
@@ -151,7 +163,8 @@ class Px4Run(ExternalRun):
                 return found
             return dataclasses.replace(found, down_m=found.down_m + home_up_m)
 
-        return PoseRenderedSource(renderer, pose, self.scenario.fps, seed=self.world.seed)
+        camera = PoseRenderedSource(renderer, pose, self.scenario.fps, seed=self.world.seed)
+        return UnpluggableSource(camera, self._plugged)
 
     async def _sticks(self, gcs: GroundStation) -> None:
         """MANUAL_CONTROL at 20 Hz: throttle centred (hold altitude), forward as ``stick_x``."""
@@ -199,8 +212,21 @@ class Px4Run(ExternalRun):
             await self._wait_mode("POSCTL", 10.0)
             self._t0_ns = time.monotonic_ns()
             self.stick_x = 1000
-            await self._watch(gcs, self.scenario.duration_s, push=False)
+            timeline = asyncio.create_task(self._camera_timeline(), name="timeline")
+            try:
+                await self._watch(gcs, self.scenario.duration_s, push=False)
+            finally:
+                timeline.cancel()
             self.stick_x = 0
+
+    async def _camera_timeline(self) -> None:
+        """The scenario's camera actions, at their times from the start of the push."""
+        for action in sorted(self.scenario.timeline, key=lambda a: a.t_s):
+            wait_s = action.t_s - (time.monotonic_ns() - self._t0_ns) / 1e9
+            if wait_s > 0:
+                await asyncio.sleep(wait_s)
+            self._plugged[0] = action.action == "camera_replug"
+            logger.info("scenario: %s at %.1f s", action.action.replace("_", " "), action.t_s)
 
     async def _wait_ready(self, timeout_s: float) -> None:
         """Until avoidd sends fresh proximity data (its camera needs the pose PX4 reports)."""

@@ -22,38 +22,17 @@ import numpy as np
 from avoidd.config.sim import ActionConfig, ScenarioConfig
 from avoidd.config.sources import SourceConfig
 from avoidd.daemon import Daemon
-from avoidd.errors import SourceError
 from avoidd.mavlink import codec as mav
 from avoidd.sim.external import HOME, ExternalRun, ExternalSummary, daemon_config
 from avoidd.sim.flight import SimAutopilot
 from avoidd.sim.mav_autopilot import SimulatedAutopilot
+from avoidd.sim.pose_source import UnpluggableSource
 from avoidd.sim.vehicle import Multirotor, VehicleState
 from avoidd.sources.base import FrameSource
-from avoidd.types import RectifiedRig, StereoFrame
+from avoidd.types import RectifiedRig
 from avoidd.vision.calibration import Calibration
 
 _OFFBOARD_TRY_S = 0.5
-
-
-class _Unpluggable:
-    """A frame source that fails while the scenario has the camera unplugged."""
-
-    def __init__(self, source: FrameSource, plugged: list[bool]) -> None:
-        self._source = source
-        self._plugged = plugged
-
-    @property
-    def description(self) -> str:
-        return self._source.description
-
-    def read(self) -> StereoFrame:
-        if not self._plugged[0]:
-            time.sleep(0.1)
-            raise SourceError("camera unplugged (scenario timeline)")
-        return self._source.read()
-
-    def close(self) -> None:
-        self._source.close()
 
 
 class RealtimeRun(ExternalRun):
@@ -127,7 +106,7 @@ class RealtimeRun(ExternalRun):
         paced: bool,
         input_path: Path | None = None,
     ) -> FrameSource:
-        return _Unpluggable(self._camera(config, rig, head, paced, input_path), self._plugged)
+        return UnpluggableSource(self._camera(config, rig, head, paced, input_path), self._plugged)
 
     async def _wait_link(self, timeout_s: float) -> None:
         daemon = self.daemon
