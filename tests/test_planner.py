@@ -9,7 +9,7 @@ import numpy as np
 import pytest
 
 from avoidd.config import AvoidanceConfig
-from avoidd.planner.core import Goal, Planner, Pose, stopping_speed_m_s
+from avoidd.planner.core import Goal, Planner, Pose, effective_latency_s, stopping_speed_m_s
 from avoidd.planner.gating import Facts, Gate, gate
 from avoidd.planner.geometry import directions_rad, free_distance
 from avoidd.planner.memory import ObstacleMemory, bearing_bins
@@ -230,6 +230,27 @@ def test_speed_follows_the_free_distance() -> None:
     slow = near.decide(S, _pose(1.0), goal, fresh=True)
     fast = far.decide(S, _pose(1.0), goal, fresh=True)
     assert slow.speed_limit_m_s < fast.speed_limit_m_s
+
+
+def test_an_old_scan_slows_the_vehicle_as_a_longer_latency_would() -> None:
+    """Perception running late (a loaded machine): the speed law counts the scan's age."""
+    goal = Goal(30.0, 0.0, 2.0)
+    speeds = []
+    for age_s in (0.05, 0.3, 0.6):
+        planner = _planner()
+        # A wall 4 m away across the whole view: every way ahead is free for the same
+        # distance, so the speed law decides.
+        planner.observe_scan(_scan({i: 4.0 for i in range(-7, 8)}), S, _pose(1.0))
+        t_ns = S + int(age_s * S)
+        speeds.append(planner.decide(t_ns, _pose(t_ns / S), goal, fresh=True).speed_limit_m_s)
+    # A fresh scan: the configured latency (0.4 s) governs, as 0.05 + 0.05 + 0.2 s is less;
+    # older ones: their age counts, and the speed falls as it would for that latency.
+    assert speeds[0] > speeds[1] > speeds[2] > 0.0
+    free_m = 4.0 - 1.0  # about: the wall less radius and margin
+    ratio = stopping_speed_m_s(free_m, 2.0, 0.85) / stopping_speed_m_s(free_m, 2.0, 0.4)
+    assert speeds[2] / speeds[0] == pytest.approx(ratio, rel=0.1)
+    assert effective_latency_s(0.4, 0.05, 20.0) == 0.4
+    assert effective_latency_s(0.4, 0.6, 20.0) == pytest.approx(0.6 + 0.05 + 0.2)
 
 
 def test_stale_perception_holds() -> None:

@@ -13,7 +13,10 @@ VFH+ in spirit, over 72 world directions (5 degrees from north):
   the goal direction to pass an obstacle, the other side costs extra until the goal direction
   is admissible again (no flipping between the two sides of a pole);
 - speed along it: ``v <= min(v_max, sqrt(2 a (d - v latency)))``, ``d`` the free distance that
-  way (radius and margin already taken off), and no faster than stopping at the goal;
+  way (radius and margin already taken off), and no faster than stopping at the goal; the
+  latency is the configured one, or more when the newest scan is older than it allows for (a
+  loaded machine): its age, one setpoint period and the autopilot's response
+  (:func:`effective_latency_s`);
 - yaw toward the direction of travel (rate-limited), so a forward camera sees the way;
 - no admissible direction: hold, then turn up to 180 degrees each way looking for one; none
   within ``dead_end_scan_s``: hold and say "no path to goal". Never crawl forward.
@@ -132,6 +135,29 @@ def stopping_speed_m_s(free_m: float, accel_m_s2: float, latency_s: float) -> fl
         return 0.0
     a, t = accel_m_s2, latency_s
     return -a * t + math.sqrt(a * a * t * t + 2.0 * a * free_m)
+
+
+AUTOPILOT_RESPONSE_S = 0.2
+"""Time an autopilot's velocity controller takes to act on a new setpoint (part of latency)."""
+
+
+def effective_latency_s(configured_s: float, scan_age_s: float, setpoint_rate_hz: float) -> float:
+    """The delay the speed law allows for: the configured latency, or more with an old scan.
+
+    What the vehicle does next rests on the newest scan: until a new setpoint acts, the world
+    is as old as that scan plus one setpoint period plus the autopilot's response. Perception
+    slowed by a loaded machine thus slows the vehicle instead of shrinking its margin.
+
+    Args:
+        configured_s: ``avoidance.latency_ms`` in seconds (the floor).
+        scan_age_s: Age of the newest scan the planner has (capture to now).
+        setpoint_rate_hz: Setpoints per second.
+
+    Returns:
+        Seconds.
+    """
+    measured_s = max(0.0, scan_age_s) + 1.0 / setpoint_rate_hz + AUTOPILOT_RESPONSE_S
+    return max(configured_s, measured_s)
 
 
 @dataclass
@@ -365,7 +391,7 @@ class Planner:
         self._previous_rad = chosen
         speed = min(
             config.max_speed_m_s,
-            stopping_speed_m_s(chosen_free, config.max_accel_m_s2, config.latency_ms / 1000.0),
+            stopping_speed_m_s(chosen_free, config.max_accel_m_s2, self._latency_s(now_ns)),
             math.sqrt(2.0 * config.max_accel_m_s2 * goal_m),
             slow_for,
         )
@@ -448,6 +474,12 @@ class Planner:
     def _yaw_rate(self, error_rad: float) -> float:
         limit = math.radians(self.config.max_yaw_rate_deg_s)
         return max(-limit, min(limit, _YAW_GAIN * error_rad))
+
+    def _latency_s(self, now_ns: int) -> float:
+        """The speed law's delay now (see :func:`effective_latency_s`)."""
+        config = self.config
+        age_s = (now_ns - self._last_scan_ns) / 1e9 if self._last_scan_ns >= 0 else 0.0
+        return effective_latency_s(config.latency_ms / 1000.0, age_s, config.setpoint_rate_hz)
 
     def _no_progress(self, now_ns: int, goal_m: float) -> bool:
         """Whether the goal has come no nearer (by 0.5 m) for ``no_progress_s``: give up."""
