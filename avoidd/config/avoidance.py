@@ -38,7 +38,8 @@ class AvoidanceConfig(Strict):
         max_yaw_rate_deg_s: Yaw rate limit.
         acceptance_radius_m: A goal within this horizontal distance is reached.
         latency_ms: Time from capture to the vehicle acting on a setpoint (the speed law keeps
-            the distance covered meanwhile).
+            the distance covered meanwhile); a floor: with an older newest scan, its age plus
+            one setpoint period plus 0.2 s counts instead.
         setpoint_rate_hz: Setpoints per second (PX4 needs more than 2 Hz).
         memory_s: How long an obstacle that left the cameras' view is remembered.
         unknown: ``blocked``: never move toward a direction nothing measured (as PX4's
