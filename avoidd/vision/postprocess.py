@@ -8,12 +8,15 @@ obstacle detection (``avoidd.pipeline`` keeps the measured map for that).
 from __future__ import annotations
 
 import math
+from typing import NamedTuple
 
 import cv2
 import numpy as np
 import numpy.typing as npt
 
-from avoidd.types import FloatArray, Image
+from avoidd.config import PostprocessConfig
+from avoidd.types import BoolArray, FloatArray, Image
+from avoidd.vision.edges import fattened_indices, hidden_from_right, short_gap_indices
 
 
 def refine_subpixel(
@@ -243,7 +246,9 @@ def noise_sigma(grey: Image) -> float:
     return float(np.sqrt(np.pi / 2.0) / 6.0 * level)
 
 
-def texture_gate(grey: Image, window_px: int, min_snr: float) -> npt.NDArray[np.bool_]:
+def texture_gate(
+    grey: Image, window_px: int, min_snr: float, sigma: float | None = None
+) -> npt.NDArray[np.bool_]:
     """Pixels with more texture along the epipolar line than the sensor noise alone would give.
 
     Texture is the grey-level variance along each row segment of ``window_px`` pixels,
@@ -259,6 +264,7 @@ def texture_gate(grey: Image, window_px: int, min_snr: float) -> npt.NDArray[np.
         grey: The rectified left view the disparity belongs to.
         window_px: Side of the window (odd).
         min_snr: Required ratio of local row-wise standard deviation to noise.
+        sigma: The view's :func:`noise_sigma`, when already known (else it is estimated).
 
     Returns:
         (H, W) mask, True where the image carries texture along its rows.
@@ -276,7 +282,80 @@ def texture_gate(grey: Image, window_px: int, min_snr: float) -> npt.NDArray[np.
     summed = cv2.sepFilter2D(spread, -1, one, ones, borderType=border)  # n^3 * mean variance
     # An 8-bit image is never known better than its rounding: without this floor a flat,
     # noise-free image (a saturated or black frame) has sigma 0 and every pixel passes.
-    sigma = max(noise_sigma(grey), QUANTISATION_SIGMA)
+    sigma = max(noise_sigma(grey) if sigma is None else sigma, QUANTISATION_SIGMA)
     noise_variance = sigma * sigma * (1.0 - 1.0 / n)
     threshold = min_snr * min_snr * noise_variance * n * n * n
     return np.asarray(summed >= np.float32(threshold), dtype=np.bool_)
+
+
+class PostResult(NamedTuple):
+    """What the post-processing of one disparity map gives.
+
+    Attributes:
+        disparity: The measured disparity, NaN where nothing trustworthy was measured (a new
+            array: the input is not modified).
+        textured: Pixels with texture enough to match (the texture mask and the texture
+            gate, where on), or None when neither is on.
+        filled: The hole-filled map for display (``fill_holes`` on), else None.
+    """
+
+    disparity: FloatArray
+    textured: BoolArray | None
+    filled: FloatArray | None
+
+
+def postprocess_disparity(
+    left: Image,
+    right: Image,
+    disparity_px: FloatArray,
+    config: PostprocessConfig,
+    texture: BoolArray | None = None,
+    filled_by_matcher: BoolArray | None = None,
+) -> PostResult:
+    """Every post-processing step after the matcher, in order, on one disparity map.
+
+    Sub-pixel refinement, median, speckles, the depth-edge checks (hidden from the right
+    camera, too narrow occlusion gaps, foreground fattening), the texture mask and gate, the
+    display fill, and last the matcher's filled pixels dropped. The view's noise is estimated
+    once and serves both the fattening check and the texture gate.
+
+    Args:
+        left: Rectified left grey view (the disparity's reference).
+        right: Rectified right grey view.
+        disparity_px: The matcher's disparity (NaN invalid); not modified.
+        config: The head's ``postprocess`` section.
+        texture: The preprocessing's texture mask (True: textured), if any.
+        filled_by_matcher: Pixels the matcher filled rather than measured, if any.
+
+    Returns:
+        The measured map, the textured pixels and the display map.
+    """
+    disparity = disparity_px
+    if config.subpixel_refine:
+        disparity = refine_subpixel(left, right, disparity, config.refine_window_px)
+    disparity = median_smooth(disparity, config.median_size)
+    disparity = remove_speckles(disparity, config.speckle_window_px, config.speckle_range_px)
+    if disparity is disparity_px or not disparity.flags.c_contiguous:
+        disparity = np.array(disparity, dtype=np.float32, order="C")  # never the input
+    nan = np.float32(np.nan)
+    flat = disparity.ravel()  # a view: the map is contiguous
+    sigma = None
+    if config.edge_radius_px:
+        np.putmask(disparity, hidden_from_right(disparity), nan)
+        radius, jump = config.edge_radius_px, config.edge_jump_px
+        flat[short_gap_indices(disparity, jump, 2 * radius)] = nan
+        sigma = noise_sigma(left)
+        # Background that took the silhouette's disparity.
+        flat[fattened_indices(left, right, disparity, radius, jump, sigma)] = nan
+    if texture is not None:
+        np.putmask(disparity, ~texture, nan)  # untextured: not measured, never guessed
+    textured = texture
+    if config.min_texture_snr > 0:
+        gate = texture_gate(left, config.texture_window_px, config.min_texture_snr, sigma)
+        np.putmask(disparity, ~gate, nan)  # contrast below the noise: a guess
+        textured = gate if textured is None else textured & gate
+    # The display map is filled before anything is blanked; the map obstacles see is not.
+    filled = fill_holes(disparity) if config.fill_holes else None
+    if filled_by_matcher is not None:
+        np.putmask(disparity, filled_by_matcher, nan)  # filled, not measured
+    return PostResult(disparity, textured, filled)
