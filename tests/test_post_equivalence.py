@@ -21,6 +21,7 @@ from avoidd.vision.edges import fattened_pixels, hidden_from_right, short_occlus
 from avoidd.vision.matchers import SgbmMatcher
 from avoidd.vision.nearfield import NearField
 from avoidd.vision.postprocess import (
+    QUANTISATION_SIGMA,
     fill_holes,
     median_smooth,
     noise_sigma,
@@ -121,6 +122,32 @@ def _reference_short_gaps(
         length = int(np.argmin(run)) if not run.all() else run.size
         drop[row, column : column + length] = True
     return drop
+
+
+def _reference_median(disparity_px: npt.NDArray[Any], size: int) -> npt.NDArray[Any]:
+    original = disparity_px.astype(np.float32, copy=False)
+    measured = cv2.compare(original, original, cv2.CMP_EQ)
+    parity = (np.arange(original.shape[0])[:, None] + np.arange(original.shape[1])[None, :]) % 2
+    filled = np.where(parity == 1, np.float32(1e6), np.float32(-1e6)).astype(np.float32)
+    cv2.copyTo(original, measured, filled)
+    smoothed = cv2.medianBlur(filled, size)
+    balanced = cv2.inRange(smoothed, -5e5, 5e5)
+    result = original.copy()
+    cv2.copyTo(smoothed, cv2.bitwise_and(balanced, measured), result)
+    return result
+
+
+def _reference_gate(grey: npt.NDArray[Any], n: int, min_snr: float) -> npt.NDArray[np.bool_]:
+    ones, one = np.ones(n, np.float32), np.ones(1, np.float32)
+    border = cv2.BORDER_REFLECT
+    total = cv2.sepFilter2D(grey, cv2.CV_32F, ones, one, borderType=border)
+    squares = cv2.multiply(grey, grey, dtype=cv2.CV_32F)
+    total_sq = cv2.sepFilter2D(squares, -1, ones, one, borderType=border)
+    spread = cv2.scaleAdd(total_sq, float(n), cv2.multiply(total, total, scale=-1.0))
+    summed = cv2.sepFilter2D(spread, -1, one, ones, borderType=border)
+    sigma = max(noise_sigma(grey), QUANTISATION_SIGMA)
+    threshold = min_snr * min_snr * sigma * sigma * (1.0 - 1.0 / n) * n * n * n
+    return np.asarray(summed >= np.float32(threshold), dtype=np.bool_)
 
 
 def _random_map(rng: np.random.Generator, height: int, width: int, fine: bool) -> Any:
@@ -253,7 +280,8 @@ def _reference_block(
     """The post block of ``HeadPipeline.process`` as it was, on the reference checks."""
     if post.subpixel_refine:
         disparity = refine_subpixel(left, right, disparity, post.refine_window_px)
-    disparity = median_smooth(disparity, post.median_size)
+    if post.median_size:
+        disparity = _reference_median(disparity, post.median_size)
     disparity = remove_speckles(disparity, post.speckle_window_px, post.speckle_range_px)
     disparity = disparity.copy()
     if post.edge_radius_px:
@@ -268,7 +296,7 @@ def _reference_block(
         disparity[~texture] = np.nan
     textured = texture
     if post.min_texture_snr > 0:
-        gate = texture_gate(left, post.texture_window_px, post.min_texture_snr)
+        gate = _reference_gate(left, post.texture_window_px, post.min_texture_snr)
         disparity[~gate] = np.nan
         textured = gate if textured is None else textured & gate
     filled_display = fill_holes(disparity) if post.fill_holes else None
@@ -303,3 +331,32 @@ def test_the_whole_post_block_matches_the_reference(
             assert (got is None) == (want is None)
             if got is not None:
                 np.testing.assert_array_equal(got, want)
+
+
+@pytest.mark.parametrize("seed", range(4))
+def test_median_and_texture_gate_match_the_reference(seed: int) -> None:
+    rng = np.random.default_rng(100 + seed)
+    height, width = int(rng.integers(3, 60)), int(rng.integers(3, 200))
+    disparity = _random_map(rng, height, width, fine=seed % 2 == 1)
+    for size in (3, 5):
+        np.testing.assert_array_equal(
+            median_smooth(disparity, size), _reference_median(disparity, size)
+        )
+    grey = rng.integers(0, 256, (height, width), dtype=np.uint8)
+    grey[:, : width // 2] = rng.integers(100, 103, (height, width // 2), dtype=np.uint8)
+    for window in (3, 7, 11):
+        np.testing.assert_array_equal(
+            texture_gate(grey, window, 1.5), _reference_gate(grey, window, 1.5)
+        )
+        sigma = noise_sigma(grey)
+        np.testing.assert_array_equal(
+            texture_gate(grey, window, 1.5, sigma), _reference_gate(grey, window, 1.5)
+        )
+
+
+def test_median_and_texture_gate_match_the_reference_on_rendered_frames(
+    rendered: list[tuple[Any, Any, Any]],
+) -> None:
+    for left, _, disparity in rendered:
+        np.testing.assert_array_equal(median_smooth(disparity, 5), _reference_median(disparity, 5))
+        np.testing.assert_array_equal(texture_gate(left, 7, 1.5), _reference_gate(left, 7, 1.5))

@@ -88,7 +88,7 @@ def fattened_indices(
     # Near the edge only: within the radius of a jump down or of an unmeasured pixel (inf -
     # inf is NaN where nothing is measured: not a step).
     with np.errstate(invalid="ignore"):
-        step = cv2.subtract(measured, lowest_near) >= jump
+        step = cv2.subtract(measured, lowest_near, dst=lowest_near) >= jump
     step |= all_near == 0
     step &= valid != 0
     flat = np.flatnonzero(step)
@@ -142,12 +142,13 @@ def hidden_from_right(disparity_px: FloatArray) -> BoolArray:
     """
     height, width = disparity_px.shape
     disparity = np.ascontiguousarray(disparity_px, dtype=np.float32)
-    # Where each pixel lands in the right view; unmeasured pixels land nowhere (NaN, then inf).
-    lands = cv2.patchNaNs(cv2.subtract(_columns(height, width), disparity), np.inf)
+    # Where each pixel lands in the right view (NaN: unmeasured pixels land nowhere).
+    lands = cv2.subtract(_columns(height, width), disparity)
+    spot = np.add(lands, np.float32(0.5))  # NaN: an unmeasured pixel is never hidden
+    cv2.patchNaNs(lands, np.inf)  # nor does it hide anything
     # The leftmost landing of every pixel from each one to the row's end: a suffix minimum,
     # in ceil(log2(W)) steps that each fold in the minimum of the next `shift` columns.
-    after = lands.copy()
-    spare = np.empty_like(after)
+    after, spare = lands, np.empty_like(lands)
     shift = 1
     while shift < width:
         spare[:, width - shift :] = after[:, width - shift :]
@@ -155,11 +156,10 @@ def hidden_from_right(disparity_px: FloatArray) -> BoolArray:
         after, spare = spare, after
         shift *= 2
     # Hidden: a pixel strictly to the right lands at or left of this one's spot (plus half a
-    # pixel); an unmeasured pixel (inf) is never hidden.
+    # pixel).
     hidden = np.zeros((height, width), dtype=np.bool_)
     with np.errstate(invalid="ignore"):
-        np.less_equal(after[:, 1:], lands[:, :-1] + np.float32(0.5), out=hidden[:, :-1])
-    hidden[:, :-1] &= lands[:, :-1] != np.float32(np.inf)
+        np.less_equal(after[:, 1:], spot[:, :-1], out=hidden[:, :-1])
     return hidden
 
 

@@ -122,11 +122,12 @@ def median_smooth(disparity_px: FloatArray, size: int) -> FloatArray:
     filled = _checker_fill(*original.shape).copy()
     cv2.copyTo(original, measured, filled)
     smoothed = cv2.medianBlur(filled, size)
+    del filled
     limit = float(_HOLE_FILL / 2)
-    balanced = cv2.inRange(smoothed, -limit, limit)
-    result = original.copy()  # holes stay holes; unbalanced windows keep their own value
-    cv2.copyTo(smoothed, cv2.bitwise_and(balanced, measured), result)
-    return result
+    keep = cv2.bitwise_and(cv2.inRange(smoothed, -limit, limit), measured)
+    # Holes stay holes; unbalanced windows keep their own value.
+    cv2.copyTo(original, cv2.bitwise_not(keep, dst=keep), smoothed)
+    return np.asarray(smoothed, dtype=np.float32)
 
 
 def left_right_check(
@@ -277,9 +278,12 @@ def texture_gate(
     total = cv2.sepFilter2D(grey, cv2.CV_32F, ones, one, borderType=border)
     squares = cv2.multiply(grey, grey, dtype=cv2.CV_32F)
     total_sq = cv2.sepFilter2D(squares, -1, ones, one, borderType=border)
-    # n^2 times the variance of each row segment: n * sum(x^2) - sum(x)^2.
-    spread = cv2.scaleAdd(total_sq, float(n), cv2.multiply(total, total, scale=-1.0))
-    summed = cv2.sepFilter2D(spread, -1, one, ones, borderType=border)  # n^3 * mean variance
+    # n^2 times the variance of each row segment: n * sum(x^2) - sum(x)^2 (in place: fewer
+    # fresh arrays, each of which costs page faults on its first use).
+    spread = cv2.multiply(total, total, dst=total, scale=-1.0)
+    cv2.scaleAdd(total_sq, float(n), spread, dst=spread)
+    summed = cv2.sepFilter2D(spread, -1, one, ones, dst=squares, borderType=border)
+    # summed: n^3 times the mean variance.
     # An 8-bit image is never known better than its rounding: without this floor a flat,
     # noise-free image (a saturated or black frame) has sigma 0 and every pixel passes.
     sigma = max(noise_sigma(grey) if sigma is None else sigma, QUANTISATION_SIGMA)
