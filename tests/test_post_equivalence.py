@@ -7,6 +7,7 @@ ones must agree with them exactly, pixel for pixel, on rendered frames and on ra
 
 from __future__ import annotations
 
+from concurrent.futures import ThreadPoolExecutor
 from typing import Any
 
 import cv2
@@ -21,6 +22,7 @@ from avoidd.vision.edges import fattened_pixels, hidden_from_right, short_occlus
 from avoidd.vision.matchers import SgbmMatcher
 from avoidd.vision.nearfield import NearField
 from avoidd.vision.postprocess import (
+    _PERCENTILE_BIAS,
     QUANTISATION_SIGMA,
     fill_holes,
     median_smooth,
@@ -137,6 +139,22 @@ def _reference_median(disparity_px: npt.NDArray[Any], size: int) -> npt.NDArray[
     return result
 
 
+def _reference_sigma(grey: npt.NDArray[Any]) -> float:
+    kernel = np.array([1.0, -2.0, 1.0], dtype=np.float32)
+    response = cv2.sepFilter2D(grey, cv2.CV_32F, kernel, kernel)[1:-1, 1:-1]
+    magnitude = np.abs(response)
+    height, width = magnitude.shape
+    rows, columns = height // 16, width // 16
+    if rows and columns:
+        means = cv2.resize(
+            magnitude[: rows * 16, : columns * 16], (columns, rows), interpolation=cv2.INTER_AREA
+        )
+        level = float(np.percentile(means, 10.0)) / _PERCENTILE_BIAS
+    else:
+        level = float(np.mean(magnitude))
+    return float(np.sqrt(np.pi / 2.0) / 6.0 * level)
+
+
 def _reference_gate(grey: npt.NDArray[Any], n: int, min_snr: float) -> npt.NDArray[np.bool_]:
     ones, one = np.ones(n, np.float32), np.ones(1, np.float32)
     border = cv2.BORDER_REFLECT
@@ -145,7 +163,7 @@ def _reference_gate(grey: npt.NDArray[Any], n: int, min_snr: float) -> npt.NDArr
     total_sq = cv2.sepFilter2D(squares, -1, ones, one, borderType=border)
     spread = cv2.scaleAdd(total_sq, float(n), cv2.multiply(total, total, scale=-1.0))
     summed = cv2.sepFilter2D(spread, -1, one, ones, borderType=border)
-    sigma = max(noise_sigma(grey), QUANTISATION_SIGMA)
+    sigma = max(_reference_sigma(grey), QUANTISATION_SIGMA)
     threshold = min_snr * min_snr * sigma * sigma * (1.0 - 1.0 / n) * n * n * n
     return np.asarray(summed >= np.float32(threshold), dtype=np.bool_)
 
@@ -289,7 +307,7 @@ def _reference_block(
         short = _reference_short_gaps(disparity, post.edge_jump_px, 2 * post.edge_radius_px)
         disparity[short] = np.nan
         fattened = _reference_fattened(
-            left, right, disparity, post.edge_radius_px, post.edge_jump_px, noise_sigma(left)
+            left, right, disparity, post.edge_radius_px, post.edge_jump_px, _reference_sigma(left)
         )
         disparity[fattened] = np.nan
     if texture is not None:
@@ -344,6 +362,7 @@ def test_median_and_texture_gate_match_the_reference(seed: int) -> None:
         )
     grey = rng.integers(0, 256, (height, width), dtype=np.uint8)
     grey[:, : width // 2] = rng.integers(100, 103, (height, width // 2), dtype=np.uint8)
+    assert noise_sigma(grey) == _reference_sigma(grey)
     for window in (3, 7, 11):
         np.testing.assert_array_equal(
             texture_gate(grey, window, 1.5), _reference_gate(grey, window, 1.5)
@@ -357,6 +376,19 @@ def test_median_and_texture_gate_match_the_reference(seed: int) -> None:
 def test_median_and_texture_gate_match_the_reference_on_rendered_frames(
     rendered: list[tuple[Any, Any, Any]],
 ) -> None:
-    for left, _, disparity in rendered:
+    for left, right, disparity in rendered:
+        assert noise_sigma(left) == _reference_sigma(left)
+        assert noise_sigma(right) == _reference_sigma(right)
         np.testing.assert_array_equal(median_smooth(disparity, 5), _reference_median(disparity, 5))
         np.testing.assert_array_equal(texture_gate(left, 7, 1.5), _reference_gate(left, 7, 1.5))
+
+
+def test_threads_do_not_share_scratch_arrays(rendered: list[tuple[Any, Any, Any]]) -> None:
+    # Two heads post-processed at once in two threads give what each gives alone.
+    post = PostprocessConfig()
+    alone = [postprocess_disparity(*frame, post).disparity for frame in rendered]
+    with ThreadPoolExecutor(max_workers=2) as pool:
+        for _ in range(3):
+            together = list(pool.map(lambda f: postprocess_disparity(*f, post), rendered))
+            for want, got in zip(alone, together, strict=True):
+                np.testing.assert_array_equal(got.disparity, want)

@@ -17,11 +17,14 @@ pixels, since the far side's disparity lands on different texture for every one 
 
 from __future__ import annotations
 
+from typing import Any
+
 import cv2
 import numpy as np
 import numpy.typing as npt
 
 from avoidd.types import BoolArray, FloatArray, Image
+from avoidd.vision.scratch import scratch
 
 IndexArray = npt.NDArray[np.intp]
 """Flat (row-major) pixel indices."""
@@ -72,25 +75,39 @@ def fattened_indices(
     margin_sigmas: float = 2.0,
 ) -> IndexArray:
     """:func:`fattened_pixels` as flat (row-major) indices of the pixels to drop, ascending."""
-    width = disparity_px.shape[1]
+    shape = disparity_px.shape
+    width = shape[1]
     disparity = np.ascontiguousarray(disparity_px, dtype=np.float32)
     # Unmeasured pixels are infinitely near for the row minimum: never the far side.
-    measured = cv2.patchNaNs(disparity.copy(), np.inf)
-    valid = cv2.compare(disparity, disparity, cv2.CMP_EQ)  # 255 where not NaN
+    measured = _scratch("measured", shape, np.float32)
+    np.copyto(measured, disparity)
+    cv2.patchNaNs(measured, np.inf)
+    valid = cv2.compare(disparity, disparity, cv2.CMP_EQ, dst=_scratch("valid", shape, np.uint8))
     jump = np.float32(jump_px)
     kernel = np.ones((1, 2 * radius_px + 1), dtype=np.uint8)
+    replicate = cv2.BORDER_REPLICATE
     # Row minima within the radius of each pixel; within twice the radius is the same
     # minimum taken twice.
-    lowest_near = cv2.erode(measured, kernel, borderType=cv2.BORDER_REPLICATE)
-    lowest = cv2.erode(lowest_near, kernel, borderType=cv2.BORDER_REPLICATE)
-    all_near = cv2.erode(valid, kernel, borderType=cv2.BORDER_REPLICATE)
-    all_measured = cv2.erode(all_near, kernel, borderType=cv2.BORDER_REPLICATE)
+    lowest_near = cv2.erode(
+        measured, kernel, dst=_scratch("lowest_near", shape, np.float32), borderType=replicate
+    )
+    lowest = cv2.erode(
+        lowest_near, kernel, dst=_scratch("lowest", shape, np.float32), borderType=replicate
+    )
+    all_near = cv2.erode(
+        valid, kernel, dst=_scratch("all_near", shape, np.uint8), borderType=replicate
+    )
+    all_measured = cv2.erode(
+        all_near, kernel, dst=_scratch("all_measured", shape, np.uint8), borderType=replicate
+    )
     # Near the edge only: within the radius of a jump down or of an unmeasured pixel (inf -
     # inf is NaN where nothing is measured: not a step).
+    step = _scratch("step", shape, np.bool_)
+    other = _scratch("other", shape, np.bool_)
     with np.errstate(invalid="ignore"):
-        step = cv2.subtract(measured, lowest_near, dst=lowest_near) >= jump
-    step |= all_near == 0
-    step &= valid != 0
+        np.greater_equal(cv2.subtract(measured, lowest_near, dst=lowest_near), jump, out=step)
+    step |= np.equal(all_near, 0, out=other)
+    step &= np.not_equal(valid, 0, out=other)
     flat = np.flatnonzero(step)
     if flat.size == 0:
         return flat
@@ -106,8 +123,9 @@ def fattened_indices(
     rows_start = flat - flat % width  # flat index of each pixel's row start
     columns = (flat - rows_start).astype(np.float32)
     # Grey levels averaged down a short column (noise down, a vertical edge kept).
-    left_mean = cv2.blur(left, (1, _COLUMN_PX)).ravel()
-    right_mean = cv2.blur(right, (1, _COLUMN_PX)).ravel()
+    size = (1, _COLUMN_PX)
+    left_mean = cv2.blur(left, size, dst=_scratch("left_mean", left.shape, np.uint8)).ravel()
+    right_mean = cv2.blur(right, size, dst=_scratch("right_mean", right.shape, np.uint8)).ravel()
 
     def right_at(x: FloatArray) -> FloatArray:
         """The right view's column mean at (row, x), linearly between columns."""
@@ -143,12 +161,16 @@ def hidden_from_right(disparity_px: FloatArray) -> BoolArray:
     height, width = disparity_px.shape
     disparity = np.ascontiguousarray(disparity_px, dtype=np.float32)
     # Where each pixel lands in the right view (NaN: unmeasured pixels land nowhere).
-    lands = cv2.subtract(_columns(height, width), disparity)
-    spot = np.add(lands, np.float32(0.5))  # NaN: an unmeasured pixel is never hidden
+    shape = (height, width)
+    lands = cv2.subtract(
+        _columns(height, width), disparity, dst=_scratch("lands", shape, np.float32)
+    )
+    # NaN: an unmeasured pixel is never hidden.
+    spot = np.add(lands, np.float32(0.5), out=_scratch("spot", shape, np.float32))
     cv2.patchNaNs(lands, np.inf)  # nor does it hide anything
     # The leftmost landing of every pixel from each one to the row's end: a suffix minimum,
     # in ceil(log2(W)) steps that each fold in the minimum of the next `shift` columns.
-    after, spare = lands, np.empty_like(lands)
+    after, spare = lands, _scratch("spare", shape, np.float32)
     shift = 1
     while shift < width:
         spare[:, width - shift :] = after[:, width - shift :]
@@ -192,7 +214,7 @@ def short_gap_indices(disparity_px: FloatArray, jump_px: float, max_columns: int
     # that changes come in pairs per run (its first column, the column after its last).
     measured = cv2.compare(disparity, disparity, cv2.CMP_EQ)  # 255 where not NaN
     padded = cv2.copyMakeBorder(measured, 0, 0, 1, 1, cv2.BORDER_CONSTANT, value=0)
-    change = np.flatnonzero(cv2.compare(padded[:, 1:], padded[:, :-1], cv2.CMP_NE))
+    change = np.flatnonzero(padded[:, 1:] != padded[:, :-1])
     if change.size < 4:
         return np.zeros(0, dtype=np.intp)
     row, column = np.divmod(change, width + 1)  # column: in the unpadded image
@@ -230,6 +252,11 @@ def _columns(height: int, width: int) -> FloatArray:
             np.arange(width, dtype=np.float32), (height, 1)
         )
     return grid
+
+
+def _scratch(name: str, shape: tuple[int, ...], dtype: npt.DTypeLike) -> npt.NDArray[Any]:
+    """This module's scratch arrays (see :mod:`avoidd.vision.scratch`)."""
+    return scratch("edges." + name, shape, dtype)
 
 
 def _mask(shape: tuple[int, ...], flat: IndexArray) -> BoolArray:

@@ -17,6 +17,7 @@ import numpy.typing as npt
 from avoidd.config import PostprocessConfig
 from avoidd.types import BoolArray, FloatArray, Image
 from avoidd.vision.edges import fattened_indices, hidden_from_right, short_gap_indices
+from avoidd.vision.scratch import scratch
 
 
 def refine_subpixel(
@@ -119,10 +120,10 @@ def median_smooth(disparity_px: FloatArray, size: int) -> FloatArray:
         raise ValueError(f"median size must be 0, 3 or 5, got {size}")
     original = disparity_px.astype(np.float32, copy=False)
     measured = cv2.compare(original, original, cv2.CMP_EQ)  # 255 where not NaN
-    filled = _checker_fill(*original.shape).copy()
+    filled = scratch("postprocess.median_smooth", original.shape, np.float32)
+    np.copyto(filled, _checker_fill(*original.shape))
     cv2.copyTo(original, measured, filled)
     smoothed = cv2.medianBlur(filled, size)
-    del filled
     limit = float(_HOLE_FILL / 2)
     keep = cv2.bitwise_and(cv2.inRange(smoothed, -limit, limit), measured)
     # Holes stay holes; unbalanced windows keep their own value.
@@ -230,8 +231,9 @@ def noise_sigma(grey: Image) -> float:
         The estimate in grey levels.
     """
     kernel = _NOISE_KERNEL_1D
-    response = cv2.sepFilter2D(grey, cv2.CV_32F, kernel, kernel)[1:-1, 1:-1]
-    magnitude = np.abs(response)
+    response = scratch("postprocess.noise_sigma", grey.shape, np.float32)
+    cv2.sepFilter2D(grey, cv2.CV_32F, kernel, kernel, dst=response)
+    magnitude = np.abs(response, out=response)[1:-1, 1:-1]
     height, width = magnitude.shape
     block = _NOISE_BLOCK_PX
     rows, columns = height // block, width // block
@@ -275,11 +277,14 @@ def texture_gate(
     border = cv2.BORDER_REFLECT
     # Unnormalised sums keep every step exact integers in float32 up to the column sum, and
     # OpenCV's separable filter is two to three times faster than its box filter down columns.
-    total = cv2.sepFilter2D(grey, cv2.CV_32F, ones, one, borderType=border)
-    squares = cv2.multiply(grey, grey, dtype=cv2.CV_32F)
-    total_sq = cv2.sepFilter2D(squares, -1, ones, one, borderType=border)
-    # n^2 times the variance of each row segment: n * sum(x^2) - sum(x)^2 (in place: fewer
-    # fresh arrays, each of which costs page faults on its first use).
+    shape = grey.shape
+    total = scratch("postprocess.texture_gate.total", shape, np.float32)
+    squares = scratch("postprocess.texture_gate.squares", shape, np.float32)
+    total_sq = scratch("postprocess.texture_gate.total_sq", shape, np.float32)
+    cv2.sepFilter2D(grey, cv2.CV_32F, ones, one, dst=total, borderType=border)
+    cv2.multiply(grey, grey, dst=squares, dtype=cv2.CV_32F)
+    cv2.sepFilter2D(squares, -1, ones, one, dst=total_sq, borderType=border)
+    # n^2 times the variance of each row segment: n * sum(x^2) - sum(x)^2 (in place).
     spread = cv2.multiply(total, total, dst=total, scale=-1.0)
     cv2.scaleAdd(total_sq, float(n), spread, dst=spread)
     summed = cv2.sepFilter2D(spread, -1, one, ones, dst=squares, borderType=border)
@@ -345,21 +350,21 @@ def postprocess_disparity(
     flat = disparity.ravel()  # a view: the map is contiguous
     sigma = None
     if config.edge_radius_px:
-        np.putmask(disparity, hidden_from_right(disparity), nan)
+        np.copyto(disparity, nan, where=hidden_from_right(disparity))
         radius, jump = config.edge_radius_px, config.edge_jump_px
         flat[short_gap_indices(disparity, jump, 2 * radius)] = nan
         sigma = noise_sigma(left)
         # Background that took the silhouette's disparity.
         flat[fattened_indices(left, right, disparity, radius, jump, sigma)] = nan
     if texture is not None:
-        np.putmask(disparity, ~texture, nan)  # untextured: not measured, never guessed
+        np.copyto(disparity, nan, where=~texture)  # untextured: not measured, never guessed
     textured = texture
     if config.min_texture_snr > 0:
         gate = texture_gate(left, config.texture_window_px, config.min_texture_snr, sigma)
-        np.putmask(disparity, ~gate, nan)  # contrast below the noise: a guess
+        np.copyto(disparity, nan, where=~gate)  # contrast below the noise: a guess
         textured = gate if textured is None else textured & gate
     # The display map is filled before anything is blanked; the map obstacles see is not.
     filled = fill_holes(disparity) if config.fill_holes else None
     if filled_by_matcher is not None:
-        np.putmask(disparity, filled_by_matcher, nan)  # filled, not measured
+        np.copyto(disparity, nan, where=filled_by_matcher)  # filled, not measured
     return PostResult(disparity, textured, filled)
