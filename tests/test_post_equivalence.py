@@ -20,7 +20,8 @@ from avoidd.sources.scene import Box, Pole, Scene
 from avoidd.types import RectifiedRig
 from avoidd.vision.edges import fattened_pixels, hidden_from_right, short_occlusion_gaps
 from avoidd.vision.matchers import SgbmMatcher
-from avoidd.vision.nearfield import NearField
+from avoidd.vision.matchers.border import crop_padded, pad_left, run_opencv_matcher
+from avoidd.vision.nearfield import NearField, unseen_behind
 from avoidd.vision.postprocess import (
     _PERCENTILE_BIAS,
     QUANTISATION_SIGMA,
@@ -392,3 +393,72 @@ def test_threads_do_not_share_scratch_arrays(rendered: list[tuple[Any, Any, Any]
             together = list(pool.map(lambda f: postprocess_disparity(*f, post), rendered))
             for want, got in zip(alone, together, strict=True):
                 np.testing.assert_array_equal(got.disparity, want)
+
+
+def _reference_opencv(
+    matcher: Any, left: Any, right: Any, pad: int, min_disparity: int
+) -> npt.NDArray[Any]:
+    if pad:
+        left, right = pad_left(left, pad), pad_left(right, pad)
+    raw = np.asarray(matcher.compute(left, right), dtype=np.int16)
+    disparity = raw.astype(np.float32) * np.float32(1.0 / 16.0)
+    disparity[raw < min_disparity * 16] = np.nan
+    return crop_padded(disparity, pad) if pad else disparity
+
+
+@pytest.mark.parametrize(("pad", "min_disparity"), [(0, 0), (64, 0), (32, -8), (0, 4)])
+def test_the_opencv_wrapper_matches_the_reference(pad: int, min_disparity: int) -> None:
+    left, right, _ = noisy_grey_pair(_scenes()[1], RIG, 9, 1.5)
+    sgbm = cv2.StereoSGBM.create(minDisparity=min_disparity, numDisparities=64, blockSize=5)
+    bm = cv2.StereoBM.create(numDisparities=64, blockSize=15)
+    for matcher, low in ((sgbm, min_disparity), (bm, 0)):
+        np.testing.assert_array_equal(
+            run_opencv_matcher(matcher, left, right, pad, low),
+            _reference_opencv(matcher, left, right, pad, low),
+        )
+
+
+def _reference_unseen(disparity: Any, near: Any) -> npt.NDArray[np.bool_]:
+    hidden = np.zeros(near.shape, dtype=np.bool_)
+    rows = np.flatnonzero(near.any(axis=1))
+    if rows.size == 0:
+        return hidden
+    columns = np.arange(near.shape[1], dtype=np.float32)[None, :]
+    near_rows = near[rows]
+    reach = np.where(near_rows, disparity[rows], np.float32(0.0))
+    start = np.where(near_rows, columns - reach, np.float32(np.inf))
+    covered_from = np.minimum.accumulate(start[:, ::-1], axis=1)[:, ::-1]
+    hidden[rows] = covered_from <= columns
+    hidden[:, : int(np.ceil(float(reach.max())))] = True
+    hidden &= ~near
+    return hidden
+
+
+@pytest.mark.parametrize("seed", range(4))
+def test_the_near_field_shadow_matches_the_reference(seed: int) -> None:
+    rng = np.random.default_rng(200 + seed)
+    height, width = int(rng.integers(1, 30)), int(rng.integers(1, 400))
+    disparity = rng.uniform(0.0, 120.0, (height, width)).astype(np.float32)
+    near = rng.random((height, width)) < (0.02 if seed % 2 else 0.3)
+    np.testing.assert_array_equal(
+        unseen_behind(disparity, near), _reference_unseen(disparity, near)
+    )
+
+
+def test_the_near_field_merge_matches_the_reference_on_a_near_box() -> None:
+    left, right, _ = noisy_grey_pair(_scenes()[1], RIG, 4, 1.5)
+    main = SgbmMatcher(SgbmConfig(num_disparities=64)).compute(left, right)
+    field = NearField(64, NearFieldConfig())
+    coarse = field.coarse(left, right)
+    result = field.merge(main, coarse)
+    # The reference merge.
+    merged = main.copy()
+    near = coarse >= np.float32(64 - 1 - field.scale)
+    saturated = coarse >= np.float32(field.max_disparity_px - field.scale)
+    merged[near] = coarse[near]
+    merged[saturated] = np.float32(field.max_disparity_px)
+    hidden = _reference_unseen(merged, near)
+    merged[hidden] = np.nan
+    assert near.any()
+    np.testing.assert_array_equal(result.disparity, merged)
+    np.testing.assert_array_equal(result.near, near)

@@ -162,27 +162,44 @@ def hidden_from_right(disparity_px: FloatArray) -> BoolArray:
     disparity = np.ascontiguousarray(disparity_px, dtype=np.float32)
     # Where each pixel lands in the right view (NaN: unmeasured pixels land nowhere).
     shape = (height, width)
-    lands = cv2.subtract(
-        _columns(height, width), disparity, dst=_scratch("lands", shape, np.float32)
-    )
+    lands: FloatArray = _scratch("lands", shape, np.float32)
+    cv2.subtract(_columns(height, width), disparity, dst=lands)
     # NaN: an unmeasured pixel is never hidden.
     spot = np.add(lands, np.float32(0.5), out=_scratch("spot", shape, np.float32))
     cv2.patchNaNs(lands, np.inf)  # nor does it hide anything
-    # The leftmost landing of every pixel from each one to the row's end: a suffix minimum,
-    # in ceil(log2(W)) steps that each fold in the minimum of the next `shift` columns.
-    after, spare = lands, _scratch("spare", shape, np.float32)
-    shift = 1
-    while shift < width:
-        spare[:, width - shift :] = after[:, width - shift :]
-        cv2.min(after[:, : width - shift], after[:, shift:], dst=spare[:, : width - shift])
-        after, spare = spare, after
-        shift *= 2
+    # The leftmost landing of every pixel from each one to the row's end.
+    after = row_suffix_min(lands, _scratch("spare", shape, np.float32))
     # Hidden: a pixel strictly to the right lands at or left of this one's spot (plus half a
     # pixel).
     hidden = np.zeros((height, width), dtype=np.bool_)
     with np.errstate(invalid="ignore"):
         np.less_equal(after[:, 1:], spot[:, :-1], out=hidden[:, :-1])
     return hidden
+
+
+def row_suffix_min(values: FloatArray, spare: FloatArray) -> FloatArray:
+    """The minimum of each pixel and every pixel right of it in its row (NaN-free input).
+
+    Computed in ceil(log2(W)) whole-image steps, each folding in the minimum of the next
+    ``shift`` columns (numpy's ``minimum.accumulate`` along rows takes one element at a time,
+    several times slower). Both arrays are overwritten.
+
+    Args:
+        values: (H, W) float32 values, C-contiguous or rows of one.
+        spare: An array of the same shape and type to work in.
+
+    Returns:
+        ``values`` or ``spare``, whichever holds the result.
+    """
+    width = values.shape[1]
+    after = values
+    shift = 1
+    while shift < width:
+        spare[:, width - shift :] = after[:, width - shift :]
+        cv2.min(after[:, : width - shift], after[:, shift:], dst=spare[:, : width - shift])
+        after, spare = spare, after
+        shift *= 2
+    return after
 
 
 def short_occlusion_gaps(disparity_px: FloatArray, jump_px: float, max_columns: int) -> BoolArray:
