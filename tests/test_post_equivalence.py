@@ -19,6 +19,7 @@ from avoidd.config import NearFieldConfig, PostprocessConfig, SgbmConfig
 from avoidd.sources.scene import Box, Pole, Scene
 from avoidd.types import RectifiedRig
 from avoidd.vision.edges import fattened_pixels, hidden_from_right, short_occlusion_gaps
+from avoidd.vision.fixed import FIXED_INF, to_sixteenths
 from avoidd.vision.matchers import SgbmMatcher
 from avoidd.vision.matchers.border import crop_padded, pad_left, run_opencv_matcher
 from avoidd.vision.nearfield import NearField, unseen_behind
@@ -387,10 +388,14 @@ def test_median_and_texture_gate_match_the_reference_on_rendered_frames(
 def test_threads_do_not_share_scratch_arrays(rendered: list[tuple[Any, Any, Any]]) -> None:
     # Two heads post-processed at once in two threads give what each gives alone.
     post = PostprocessConfig()
-    alone = [postprocess_disparity(*frame, post).disparity for frame in rendered]
+    alone = [
+        postprocess_disparity(frame[0], frame[1], frame[2], post).disparity for frame in rendered
+    ]
     with ThreadPoolExecutor(max_workers=2) as pool:
         for _ in range(3):
-            together = list(pool.map(lambda f: postprocess_disparity(*f, post), rendered))
+            together = list(
+                pool.map(lambda f: postprocess_disparity(f[0], f[1], f[2], post), rendered)
+            )
             for want, got in zip(alone, together, strict=True):
                 np.testing.assert_array_equal(got.disparity, want)
 
@@ -462,3 +467,15 @@ def test_the_near_field_merge_matches_the_reference_on_a_near_box() -> None:
     assert near.any()
     np.testing.assert_array_equal(result.disparity, merged)
     np.testing.assert_array_equal(result.near, near)
+
+
+def test_sixteenths_only_when_exact() -> None:
+    whole = np.array([[0.0, 1.0625, -3.5, np.nan], [1999.9375, -2000.0, 12.0, 0.5]], np.float32)
+    fixed = to_sixteenths(whole, FIXED_INF, "test.sixteenths")
+    assert fixed is not None
+    np.testing.assert_array_equal(fixed, [[0, 17, -56, FIXED_INF], [31999, -32000, 192, 8]])
+    assert to_sixteenths(whole, 0, "test.sixteenths")[0, 3] == 0  # type: ignore[index]
+    for bad in (1.03125, 2000.0625, np.inf, 0.01):  # a 32nd, beyond the range, inf, a guess
+        off = whole.copy()
+        off[1, 2] = bad
+        assert to_sixteenths(off, FIXED_INF, "test.sixteenths") is None

@@ -17,6 +17,7 @@ pixels, since the far side's disparity lands on different texture for every one 
 
 from __future__ import annotations
 
+import math
 from typing import Any
 
 import cv2
@@ -24,6 +25,7 @@ import numpy as np
 import numpy.typing as npt
 
 from avoidd.types import BoolArray, FloatArray, Image
+from avoidd.vision.fixed import FIXED_INF, FIXED_LIMIT, to_sixteenths
 from avoidd.vision.scratch import scratch
 
 IndexArray = npt.NDArray[np.intp]
@@ -78,34 +80,47 @@ def fattened_indices(
     shape = disparity_px.shape
     width = shape[1]
     disparity = np.ascontiguousarray(disparity_px, dtype=np.float32)
-    # Unmeasured pixels are infinitely near for the row minimum: never the far side.
-    measured = _scratch("measured", shape, np.float32)
-    np.copyto(measured, disparity)
-    cv2.patchNaNs(measured, np.inf)
     valid = cv2.compare(disparity, disparity, cv2.CMP_EQ, dst=_scratch("valid", shape, np.uint8))
     jump = np.float32(jump_px)
     kernel = np.ones((1, 2 * radius_px + 1), dtype=np.uint8)
     replicate = cv2.BORDER_REPLICATE
-    # Row minima within the radius of each pixel; within twice the radius is the same
-    # minimum taken twice.
-    lowest_near = cv2.erode(
-        measured, kernel, dst=_scratch("lowest_near", shape, np.float32), borderType=replicate
-    )
-    lowest = cv2.erode(
-        lowest_near, kernel, dst=_scratch("lowest", shape, np.float32), borderType=replicate
-    )
+    step = _scratch("step", shape, np.bool_)
+    other = _scratch("other", shape, np.bool_)
+    # Row minima within the radius of each pixel (`lowest_near`) and within twice the radius
+    # (`lowest`: the same minimum taken twice). Unmeasured pixels are infinitely near for
+    # them: never the far side. Near the edge: within the radius of a jump down.
+    jump16 = math.ceil(16.0 * float(jump))  # k / 16 >= jump for whole k
+    fixed = None
+    if jump16 <= FIXED_LIMIT:
+        fixed = to_sixteenths(disparity, FIXED_INF, "edges.fattened.sixteenths")
+    if fixed is not None:  # in whole sixteenths: the same minima, in 16-bit integers
+        lowest_near = cv2.erode(
+            fixed, kernel, dst=_scratch("lowest_near16", shape, np.int16), borderType=replicate
+        )
+        lowest = cv2.erode(
+            lowest_near, kernel, dst=_scratch("lowest16", shape, np.int16), borderType=replicate
+        )
+        # Saturating: a step beyond the 16-bit range still counts.
+        np.greater_equal(cv2.subtract(fixed, lowest_near, dst=lowest_near), jump16, out=step)
+    else:
+        measured = _scratch("measured", shape, np.float32)
+        np.copyto(measured, disparity)
+        cv2.patchNaNs(measured, np.inf)
+        lowest_near = cv2.erode(
+            measured, kernel, dst=_scratch("lowest_near", shape, np.float32), borderType=replicate
+        )
+        lowest = cv2.erode(
+            lowest_near, kernel, dst=_scratch("lowest", shape, np.float32), borderType=replicate
+        )
+        with np.errstate(invalid="ignore"):  # inf - inf where nothing is measured: no step
+            np.greater_equal(cv2.subtract(measured, lowest_near, dst=lowest_near), jump, out=step)
     all_near = cv2.erode(
         valid, kernel, dst=_scratch("all_near", shape, np.uint8), borderType=replicate
     )
     all_measured = cv2.erode(
         all_near, kernel, dst=_scratch("all_measured", shape, np.uint8), borderType=replicate
     )
-    # Near the edge only: within the radius of a jump down or of an unmeasured pixel (inf -
-    # inf is NaN where nothing is measured: not a step).
-    step = _scratch("step", shape, np.bool_)
-    other = _scratch("other", shape, np.bool_)
-    with np.errstate(invalid="ignore"):
-        np.greater_equal(cv2.subtract(measured, lowest_near, dst=lowest_near), jump, out=step)
+    # Or within the radius of an unmeasured pixel; and measured itself.
     step |= np.equal(all_near, 0, out=other)
     step &= np.not_equal(valid, 0, out=other)
     flat = np.flatnonzero(step)
@@ -115,7 +130,9 @@ def fattened_indices(
     # Far side: the smallest measured disparity along the row within twice the radius, when
     # it lies a jump below the pixel's own (the background beyond a strip the matcher left
     # unmeasured); else infinitely far (0) when only unmeasured pixels are there (sky).
-    low = lowest.ravel()[flat]
+    low = lowest.ravel()[flat].astype(np.float32)
+    if fixed is not None:
+        low *= np.float32(1.0 / 16.0)  # exact: a candidate's own value bounds its minimum
     blank = all_measured.ravel()[flat] == 0
     far = np.where(low <= d - jump, low, np.where(blank, np.float32(0.0), d))
     checked = d - far >= jump
@@ -130,9 +147,9 @@ def fattened_indices(
     def right_at(x: FloatArray) -> FloatArray:
         """The right view's column mean at (row, x), linearly between columns."""
         x = np.clip(x, np.float32(0.0), np.float32(width - 1.001))
-        x0 = x.astype(np.int64)
-        a = (x - x0).astype(np.float32)
-        at = rows_start + x0
+        x0 = np.trunc(x)
+        a = x - x0  # exact in float32: the fractional part has no more bits than x
+        at = rows_start + x0.astype(np.intp)
         r0 = right_mean[at].astype(np.float32)
         r1 = right_mean[at + 1].astype(np.float32)
         return np.asarray((1.0 - a) * r0 + a * r1)

@@ -17,6 +17,7 @@ import numpy.typing as npt
 from avoidd.config import PostprocessConfig
 from avoidd.types import BoolArray, FloatArray, Image
 from avoidd.vision.edges import fattened_indices, hidden_from_right, short_gap_indices
+from avoidd.vision.fixed import FIXED_INF, FIXED_LIMIT, to_sixteenths
 from avoidd.vision.scratch import scratch
 
 
@@ -80,12 +81,6 @@ _HOLE_FILL = np.float32(1e6)
 
 _CHECKERS: dict[tuple[int, int, str], npt.NDArray[Any]] = {}
 
-_FIXED_LIMIT = 32000
-"""The 16-bit median takes maps whose sixteenths of a pixel all lie within this (|d| < 2000)."""
-
-_FIXED_FILL = 32767
-"""Stand-in for holes in the 16-bit median (-32767 and +32767: beyond every value it takes)."""
-
 
 def _checker_fill(height: int, width: int, dtype: npt.DTypeLike = np.float32) -> npt.NDArray[Any]:
     """The holes' stand-ins, high and low in a checkerboard (cached per image size and type)."""
@@ -93,31 +88,9 @@ def _checker_fill(height: int, width: int, dtype: npt.DTypeLike = np.float32) ->
     fill = _CHECKERS.get(key)
     if fill is None:
         parity = (np.arange(height)[:, None] + np.arange(width)[None, :]) % 2
-        high = _HOLE_FILL if np.dtype(dtype) == np.float32 else _FIXED_FILL
+        high = _HOLE_FILL if np.dtype(dtype) == np.float32 else FIXED_INF
         fill = _CHECKERS[key] = np.where(parity == 1, high, -high).astype(dtype)
     return fill
-
-
-def _sixteenths(original: FloatArray) -> npt.NDArray[np.int16] | None:
-    """The map in sixteenths of a pixel as int16 (NaN as 0), when that is exact; else None.
-
-    SGBM, BM and the near-field pass give multiples of 1/16 px, and OpenCV's 16-bit median is
-    three times faster than its float one. The median picks one of its inputs, so on exact
-    sixteenths both give the same map.
-    """
-    scaled = scratch("postprocess.sixteenths", original.shape, np.float32)
-    np.multiply(original, np.float32(16.0), out=scaled)  # exact: a power of two
-    cv2.patchNaNs(scaled, 0.0)
-    low, high, _, _ = cv2.minMaxLoc(scaled)
-    if not -_FIXED_LIMIT <= low <= high <= _FIXED_LIMIT:
-        return None
-    fixed = scratch("postprocess.sixteenths.fixed", original.shape, np.int16)
-    np.copyto(fixed, scaled, casting="unsafe")  # truncates whatever is not whole
-    back = scratch("postprocess.sixteenths.back", original.shape, np.float32)
-    np.copyto(back, fixed)
-    if cv2.norm(back, scaled, cv2.NORM_INF) != 0.0:
-        return None
-    return fixed
 
 
 def median_smooth(disparity_px: FloatArray, size: int) -> FloatArray:
@@ -149,7 +122,9 @@ def median_smooth(disparity_px: FloatArray, size: int) -> FloatArray:
     original = np.ascontiguousarray(disparity_px, dtype=np.float32)
     shape = original.shape
     measured = cv2.compare(original, original, cv2.CMP_EQ)  # 255 where not NaN
-    fixed = _sixteenths(original)
+    # Whole sixteenths (SGBM, BM, the near-field pass): OpenCV's 16-bit median, three times
+    # faster than its float one, gives the same map (a median picks one of its inputs).
+    fixed = to_sixteenths(original, 0, "postprocess.median_smooth.sixteenths")
     if fixed is None:
         filled = scratch("postprocess.median_smooth", shape, np.float32)
         np.copyto(filled, _checker_fill(shape[0], shape[1]))
@@ -162,7 +137,7 @@ def median_smooth(disparity_px: FloatArray, size: int) -> FloatArray:
         np.copyto(filled16, _checker_fill(shape[0], shape[1], np.int16))
         cv2.copyTo(fixed, measured, filled16)
         median16 = cv2.medianBlur(filled16, size, dst=fixed)  # `fixed` is no longer needed
-        keep = cv2.bitwise_and(cv2.inRange(median16, -_FIXED_LIMIT, _FIXED_LIMIT), measured)
+        keep = cv2.bitwise_and(cv2.inRange(median16, -FIXED_LIMIT, FIXED_LIMIT), measured)
         smoothed = np.multiply(median16, np.float32(1.0 / 16.0), dtype=np.float32)
     # Holes stay holes; unbalanced windows keep their own value.
     cv2.copyTo(original, cv2.bitwise_not(keep, dst=keep), smoothed)
