@@ -17,6 +17,7 @@ pixels, since the far side's disparity lands on different texture for every one 
 
 from __future__ import annotations
 
+import math
 from typing import Any
 
 import cv2
@@ -24,6 +25,11 @@ import numpy as np
 import numpy.typing as npt
 
 from avoidd.types import BoolArray, FloatArray, Image
+from avoidd.vision.fixed import FIXED_INF, FIXED_LIMIT, to_sixteenths
+from avoidd.vision.scratch import scratch
+
+IndexArray = npt.NDArray[np.intp]
+"""Flat (row-major) pixel indices."""
 
 _COLUMN_PX = 5
 """Height of the column a pixel's grey level is averaged over (noise down, edge kept)."""
@@ -55,53 +61,104 @@ def fattened_pixels(
     Returns:
         (H, W) mask of the pixels to drop.
     """
-    width = disparity_px.shape[1]
-    valid = ~np.isnan(disparity_px)
-    measured = np.where(valid, disparity_px, np.float32(np.inf)).astype(np.float32)
-    valid_u8 = valid.astype(np.uint8)
+    flat = fattened_indices(
+        left, right, disparity_px, radius_px, jump_px, noise_sigma, margin_sigmas
+    )
+    return _mask(disparity_px.shape, flat)
+
+
+def fattened_indices(
+    left: Image,
+    right: Image,
+    disparity_px: FloatArray,
+    radius_px: int,
+    jump_px: float,
+    noise_sigma: float,
+    margin_sigmas: float = 2.0,
+) -> IndexArray:
+    """:func:`fattened_pixels` as flat (row-major) indices of the pixels to drop, ascending."""
+    shape = disparity_px.shape
+    width = shape[1]
+    disparity = np.ascontiguousarray(disparity_px, dtype=np.float32)
+    valid = cv2.compare(disparity, disparity, cv2.CMP_EQ, dst=_scratch("valid", shape, np.uint8))
     jump = np.float32(jump_px)
-
-    def row_min(image: npt.NDArray[Any], half: int) -> npt.NDArray[Any]:
-        kernel = np.ones((1, 2 * half + 1), dtype=np.uint8)
-        return np.asarray(cv2.erode(image, kernel, borderType=cv2.BORDER_REPLICATE))
-
-    # Near the edge only: within the radius of a jump down or of an unmeasured pixel.
-    with np.errstate(invalid="ignore"):  # inf - inf where nothing is measured: not a step
-        step = measured - row_min(measured, radius_px) >= jump
-    step |= row_min(valid_u8, radius_px) == 0
-    rows, columns = np.nonzero(valid & step)
-    if rows.size == 0:
-        return np.zeros(valid.shape, dtype=np.bool_)
-    d = disparity_px[rows, columns].astype(np.float32)
+    kernel = np.ones((1, 2 * radius_px + 1), dtype=np.uint8)
+    replicate = cv2.BORDER_REPLICATE
+    step = _scratch("step", shape, np.bool_)
+    other = _scratch("other", shape, np.bool_)
+    # Row minima within the radius of each pixel (`lowest_near`) and within twice the radius
+    # (`lowest`: the same minimum taken twice). Unmeasured pixels are infinitely near for
+    # them: never the far side. Near the edge: within the radius of a jump down.
+    jump16 = math.ceil(16.0 * float(jump))  # k / 16 >= jump for whole k
+    fixed = None
+    if jump16 <= FIXED_LIMIT:
+        fixed = to_sixteenths(disparity, FIXED_INF, "edges.fattened.sixteenths")
+    if fixed is not None:  # in whole sixteenths: the same minima, in 16-bit integers
+        lowest_near = cv2.erode(
+            fixed, kernel, dst=_scratch("lowest_near16", shape, np.int16), borderType=replicate
+        )
+        lowest = cv2.erode(
+            lowest_near, kernel, dst=_scratch("lowest16", shape, np.int16), borderType=replicate
+        )
+        # Saturating: a step beyond the 16-bit range still counts.
+        np.greater_equal(cv2.subtract(fixed, lowest_near, dst=lowest_near), jump16, out=step)
+    else:
+        measured = _scratch("measured", shape, np.float32)
+        np.copyto(measured, disparity)
+        cv2.patchNaNs(measured, np.inf)
+        lowest_near = cv2.erode(
+            measured, kernel, dst=_scratch("lowest_near", shape, np.float32), borderType=replicate
+        )
+        lowest = cv2.erode(
+            lowest_near, kernel, dst=_scratch("lowest", shape, np.float32), borderType=replicate
+        )
+        with np.errstate(invalid="ignore"):  # inf - inf where nothing is measured: no step
+            np.greater_equal(cv2.subtract(measured, lowest_near, dst=lowest_near), jump, out=step)
+    all_near = cv2.erode(
+        valid, kernel, dst=_scratch("all_near", shape, np.uint8), borderType=replicate
+    )
+    all_measured = cv2.erode(
+        all_near, kernel, dst=_scratch("all_measured", shape, np.uint8), borderType=replicate
+    )
+    # Or within the radius of an unmeasured pixel; and measured itself.
+    step |= np.equal(all_near, 0, out=other)
+    step &= np.not_equal(valid, 0, out=other)
+    flat = np.flatnonzero(step)
+    if flat.size == 0:
+        return flat
+    d = disparity.ravel()[flat]
     # Far side: the smallest measured disparity along the row within twice the radius, when
     # it lies a jump below the pixel's own (the background beyond a strip the matcher left
     # unmeasured); else infinitely far (0) when only unmeasured pixels are there (sky).
-    reach = 2 * radius_px
-    lowest = row_min(measured, reach)[rows, columns]
-    blank = row_min(valid_u8, reach)[rows, columns] == 0
-    far = np.where(lowest <= d - jump, lowest, np.where(blank, np.float32(0.0), d))
+    low = lowest.ravel()[flat].astype(np.float32)
+    if fixed is not None:
+        low *= np.float32(1.0 / 16.0)  # exact: a candidate's own value bounds its minimum
+    blank = all_measured.ravel()[flat] == 0
+    far = np.where(low <= d - jump, low, np.where(blank, np.float32(0.0), d))
     checked = d - far >= jump
-    rows, columns, d, far = rows[checked], columns[checked], d[checked], far[checked]
+    flat, d, far = flat[checked], d[checked], far[checked]
+    rows_start = flat - flat % width  # flat index of each pixel's row start
+    columns = (flat - rows_start).astype(np.float32)
     # Grey levels averaged down a short column (noise down, a vertical edge kept).
-    left_mean = cv2.blur(left, (1, _COLUMN_PX)).astype(np.float32)
-    right_mean = cv2.blur(right, (1, _COLUMN_PX)).astype(np.float32)
+    size = (1, _COLUMN_PX)
+    left_mean = cv2.blur(left, size, dst=_scratch("left_mean", left.shape, np.uint8)).ravel()
+    right_mean = cv2.blur(right, size, dst=_scratch("right_mean", right.shape, np.uint8)).ravel()
 
     def right_at(x: FloatArray) -> FloatArray:
-        """The right view's column mean at (rows, x), linearly between columns."""
+        """The right view's column mean at (row, x), linearly between columns."""
         x = np.clip(x, np.float32(0.0), np.float32(width - 1.001))
-        x0 = x.astype(np.int64)
-        a = (x - x0).astype(np.float32)
-        return np.asarray((1.0 - a) * right_mean[rows, x0] + a * right_mean[rows, x0 + 1])
+        x0 = np.trunc(x)
+        a = x - x0  # exact in float32: the fractional part has no more bits than x
+        at = rows_start + x0.astype(np.intp)
+        r0 = right_mean[at].astype(np.float32)
+        r1 = right_mean[at + 1].astype(np.float32)
+        return np.asarray((1.0 - a) * r0 + a * r1)
 
-    own = left_mean[rows, columns]
-    at = columns.astype(np.float32)
-    near_cost = np.abs(own - right_at(at - d))
-    far_cost = np.abs(own - right_at(at - far))
+    own = left_mean[flat].astype(np.float32)
+    near_cost = np.abs(own - right_at(columns - d))
+    far_cost = np.abs(own - right_at(columns - far))
     margin = np.float32(margin_sigmas * noise_sigma / np.sqrt(_COLUMN_PX))
-    unsupported = near_cost + margin >= far_cost
-    out = np.zeros(valid.shape, dtype=np.bool_)
-    out[rows[unsupported], columns[unsupported]] = True
-    return out
+    return np.asarray(flat[near_cost + margin >= far_cost], dtype=np.intp)
 
 
 def hidden_from_right(disparity_px: FloatArray) -> BoolArray:
@@ -118,15 +175,48 @@ def hidden_from_right(disparity_px: FloatArray) -> BoolArray:
     Returns:
         (H, W) mask of the hidden pixels.
     """
-    valid = ~np.isnan(disparity_px)
-    columns = np.arange(disparity_px.shape[1], dtype=np.float32)[None, :]
-    # Where each pixel lands in the right view; unmeasured pixels land nowhere.
-    lands = np.where(valid, columns - disparity_px, np.float32(np.inf)).astype(np.float32)
-    # The leftmost landing of every pixel to the right of each one.
-    after = np.full(lands.shape, np.inf, dtype=np.float32)
-    after[:, :-1] = np.minimum.accumulate(lands[:, :0:-1], axis=1)[:, ::-1]
-    hidden = after <= lands + np.float32(0.5)
-    return hidden & valid
+    height, width = disparity_px.shape
+    disparity = np.ascontiguousarray(disparity_px, dtype=np.float32)
+    # Where each pixel lands in the right view (NaN: unmeasured pixels land nowhere).
+    shape = (height, width)
+    lands: FloatArray = _scratch("lands", shape, np.float32)
+    cv2.subtract(_columns(height, width), disparity, dst=lands)
+    # NaN: an unmeasured pixel is never hidden.
+    spot = np.add(lands, np.float32(0.5), out=_scratch("spot", shape, np.float32))
+    cv2.patchNaNs(lands, np.inf)  # nor does it hide anything
+    # The leftmost landing of every pixel from each one to the row's end.
+    after = row_suffix_min(lands, _scratch("spare", shape, np.float32))
+    # Hidden: a pixel strictly to the right lands at or left of this one's spot (plus half a
+    # pixel).
+    hidden = np.zeros((height, width), dtype=np.bool_)
+    with np.errstate(invalid="ignore"):
+        np.less_equal(after[:, 1:], spot[:, :-1], out=hidden[:, :-1])
+    return hidden
+
+
+def row_suffix_min(values: FloatArray, spare: FloatArray) -> FloatArray:
+    """The minimum of each pixel and every pixel right of it in its row (NaN-free input).
+
+    Computed in ceil(log2(W)) whole-image steps, each folding in the minimum of the next
+    ``shift`` columns (numpy's ``minimum.accumulate`` along rows takes one element at a time,
+    several times slower). Both arrays are overwritten.
+
+    Args:
+        values: (H, W) float32 values, C-contiguous or rows of one.
+        spare: An array of the same shape and type to work in.
+
+    Returns:
+        ``values`` or ``spare``, whichever holds the result.
+    """
+    width = values.shape[1]
+    after = values
+    shift = 1
+    while shift < width:
+        spare[:, width - shift :] = after[:, width - shift :]
+        cv2.min(after[:, : width - shift], after[:, shift:], dst=spare[:, : width - shift])
+        after, spare = spare, after
+        shift *= 2
+    return after
 
 
 def short_occlusion_gaps(disparity_px: FloatArray, jump_px: float, max_columns: int) -> BoolArray:
@@ -146,28 +236,65 @@ def short_occlusion_gaps(disparity_px: FloatArray, jump_px: float, max_columns: 
     Returns:
         (H, W) mask of the columns to drop.
     """
-    height, width = disparity_px.shape
-    valid = ~np.isnan(disparity_px)
-    # A measured pixel right after an unmeasured one starts a run; only those can be edges.
-    starts = valid.copy()
-    starts[:, 1:] &= ~valid[:, :-1]
-    starts[:, 0] = False
-    rows, columns = np.nonzero(starts)
-    drop = np.zeros((height, width), dtype=np.bool_)
-    if rows.size == 0:
-        return drop
-    # The previous measured pixel along each row (-1: none), at the run starts.
-    marks = np.where(valid, np.arange(width, dtype=np.int32)[None, :], np.int32(-1))
-    previous = np.maximum.accumulate(marks, axis=1)[rows, columns - 1]
-    known = previous >= 0
-    rows, columns, previous = rows[known], columns[known], previous[known]
-    step = disparity_px[rows, columns] - disparity_px[rows, previous]
+    flat = short_gap_indices(disparity_px, jump_px, max_columns)
+    return _mask(disparity_px.shape, flat)
+
+
+def short_gap_indices(disparity_px: FloatArray, jump_px: float, max_columns: int) -> IndexArray:
+    """:func:`short_occlusion_gaps` as flat (row-major) indices of the pixels to drop."""
+    width = disparity_px.shape[1]
+    disparity = np.ascontiguousarray(disparity_px, dtype=np.float32)
+    # Runs of measured pixels: each row padded with an unmeasured column on both sides, so
+    # that changes come in pairs per run (its first column, the column after its last).
+    measured = cv2.compare(disparity, disparity, cv2.CMP_EQ)  # 255 where not NaN
+    padded = cv2.copyMakeBorder(measured, 0, 0, 1, 1, cv2.BORDER_CONSTANT, value=0)
+    change = np.flatnonzero(padded[:, 1:] != padded[:, :-1])
+    if change.size < 4:
+        return np.zeros(0, dtype=np.intp)
+    row, column = np.divmod(change, width + 1)  # column: in the unpadded image
+    starts, ends = column[0::2], column[1::2]
+    run_rows = row[0::2]
+    # A run with a run before it in the same row; `previous` is that run's last column.
+    follows = run_rows[1:] == run_rows[:-1]
+    rows = run_rows[1:][follows]
+    columns, stops = starts[1:][follows], ends[1:][follows]
+    previous = ends[:-1][follows] - 1
+    base = rows * width
+    step = disparity.ravel()[base + columns] - disparity.ravel()[base + previous]
     gap = columns - previous - 1
     deficit = np.minimum(np.ceil(step - gap), max_columns).astype(np.int64)
     edge = (step >= np.float32(jump_px)) & (deficit > 0)
-    for row, column, count in zip(rows[edge], columns[edge], deficit[edge], strict=True):
-        run = valid[row, column : column + count]
-        # Only the measured run itself (it may be shorter than the deficit).
-        length = int(np.argmin(run)) if not run.all() else run.size
-        drop[row, column : column + length] = True
-    return drop
+    # Only the measured run itself (it may be shorter than the deficit).
+    length = np.minimum(deficit[edge], (stops - columns)[edge])
+    first = (base + columns)[edge]
+    total = int(length.sum())
+    if total == 0:
+        return np.zeros(0, dtype=np.intp)
+    # first[i], first[i] + 1, ..., first[i] + length[i] - 1 for every edge.
+    offsets = np.arange(total, dtype=np.intp) - np.repeat(np.cumsum(length) - length, length)
+    return np.asarray(np.repeat(first, length) + offsets, dtype=np.intp)
+
+
+_COLUMN_GRIDS: dict[tuple[int, int], FloatArray] = {}
+
+
+def _columns(height: int, width: int) -> FloatArray:
+    """Column index of every pixel, float32 (cached per image size)."""
+    grid = _COLUMN_GRIDS.get((height, width))
+    if grid is None:
+        grid = _COLUMN_GRIDS[(height, width)] = np.tile(
+            np.arange(width, dtype=np.float32), (height, 1)
+        )
+    return grid
+
+
+def _scratch(name: str, shape: tuple[int, ...], dtype: npt.DTypeLike) -> npt.NDArray[Any]:
+    """This module's scratch arrays (see :mod:`avoidd.vision.scratch`)."""
+    return scratch("edges." + name, shape, dtype)
+
+
+def _mask(shape: tuple[int, ...], flat: IndexArray) -> BoolArray:
+    """A (H, W) mask, True at the flat indices."""
+    out = np.zeros(shape, dtype=np.bool_)
+    out.ravel()[flat] = True
+    return out

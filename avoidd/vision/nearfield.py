@@ -26,6 +26,7 @@ import numpy as np
 
 from avoidd.config import NearFieldConfig, SgbmConfig
 from avoidd.types import BoolArray, FloatArray, Image, RectifiedRig
+from avoidd.vision.edges import row_suffix_min
 from avoidd.vision.matchers.sgbm import SgbmMatcher
 
 
@@ -120,8 +121,8 @@ class NearField:
         with np.errstate(invalid="ignore"):
             near = coarse >= threshold
             saturated = coarse >= np.float32(self.max_disparity_px - self.scale)
-        merged[near] = coarse[near]
-        merged[saturated] = np.float32(self.max_disparity_px)
+        np.copyto(merged, coarse, where=near)
+        np.copyto(merged, np.float32(self.max_disparity_px), where=saturated)
         hidden = unseen_behind(merged, near)
         blanked = int(np.count_nonzero(hidden & ~np.isnan(merged)))
         merged[hidden] = np.nan
@@ -159,7 +160,7 @@ def unseen_behind(disparity: FloatArray, near: BoolArray) -> BoolArray:
     reach = np.where(near_rows, disparity[rows], np.float32(0.0))
     # Shadow: column c is covered when some near pixel u >= c has u - d(u) <= c.
     start = np.where(near_rows, columns - reach, np.float32(np.inf))
-    covered_from = np.minimum.accumulate(start[:, ::-1], axis=1)[:, ::-1]
+    covered_from = row_suffix_min(start, np.empty_like(start))
     hidden[rows] = covered_from <= columns
     hidden[:, : int(np.ceil(float(reach.max())))] = True
     hidden &= ~near

@@ -48,7 +48,13 @@ def run_opencv_matcher(
     """
     if pad:
         left, right = pad_left(left, pad), pad_left(right, pad)
-    raw = np.asarray(matcher.compute(left, right), dtype=np.int16)
-    disparity = raw.astype(np.float32) * np.float32(1.0 / 16.0)
-    disparity[raw < min_disparity * 16] = np.nan
-    return crop_padded(disparity, pad) if pad else disparity
+    raw = np.asarray(matcher.compute(left, right), dtype=np.int16)[:, pad:]
+    # Converted once, cropped as it is converted (the padding is never copied).
+    disparity = raw.astype(np.float32)
+    disparity *= np.float32(1.0 / 16.0)
+    np.copyto(disparity, np.float32(np.nan), where=raw < min_disparity * 16)
+    if pad:
+        # As crop_padded: matches that land in the padding compared against copies.
+        x = np.arange(disparity.shape[1], dtype=np.float32)[None, :]
+        np.copyto(disparity, np.float32(np.nan), where=disparity > x)
+    return disparity
