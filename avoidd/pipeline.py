@@ -26,17 +26,9 @@ from avoidd.types import (
 )
 from avoidd.vision.calibration import Calibration
 from avoidd.vision.depth import depth_from_disparity
-from avoidd.vision.edges import fattened_pixels, hidden_from_right, short_occlusion_gaps
 from avoidd.vision.matchers import create_matcher
 from avoidd.vision.nearfield import NearField, min_range_m
-from avoidd.vision.postprocess import (
-    fill_holes,
-    median_smooth,
-    noise_sigma,
-    refine_subpixel,
-    remove_speckles,
-    texture_gate,
-)
+from avoidd.vision.postprocess import postprocess_disparity
 from avoidd.vision.preprocess import (
     adaptive_texture_mask,
     denoise,
@@ -307,35 +299,8 @@ class HeadPipeline:
         frame, left, right, texture = matched.frame, matched.left, matched.right, matched.texture
         disparity, filled_by_matcher = matched.disparity, matched.filled_by_matcher
         lap = Laps()
-        post = self._post
-        if post.subpixel_refine:
-            disparity = refine_subpixel(left, right, disparity, post.refine_window_px)
-        disparity = median_smooth(disparity, post.median_size)
-        disparity = remove_speckles(disparity, post.speckle_window_px, post.speckle_range_px)
-        if post.edge_radius_px:
-            disparity[hidden_from_right(disparity)] = np.nan
-            short = short_occlusion_gaps(disparity, post.edge_jump_px, 2 * post.edge_radius_px)
-            disparity[short] = np.nan
-            fattened = fattened_pixels(
-                left,
-                right,
-                disparity,
-                post.edge_radius_px,
-                post.edge_jump_px,
-                noise_sigma(left),
-            )
-            disparity[fattened] = np.nan  # background that took the silhouette's disparity
-        if texture is not None:
-            disparity[~texture] = np.nan  # untextured: not measured, never guessed
-        textured = texture
-        if post.min_texture_snr > 0:
-            gate = texture_gate(left, post.texture_window_px, post.min_texture_snr)
-            disparity[~gate] = np.nan  # contrast below the noise: a guess
-            textured = gate if textured is None else textured & gate
-        # The display map is filled before anything is blanked; the map obstacles see is not.
-        filled_display = fill_holes(disparity) if post.fill_holes else None
-        if filled_by_matcher is not None:
-            disparity[filled_by_matcher] = np.nan  # filled, not measured
+        post = postprocess_disparity(left, right, disparity, self._post, texture, filled_by_matcher)
+        disparity, textured, filled_display = post
         lap("post")
         band = self._matcher.num_disparities
         if band:
