@@ -11,9 +11,11 @@ import numpy.typing as npt
 from avoidd.config import HistogramConfig, PerceptionConfig, SectorsConfig
 from avoidd.errors import BrokenFrame
 from avoidd.perception.frames import Matrix, Pose, body_to_level, camera_to_level
+from avoidd.perception.grid import point_cells
 from avoidd.perception.ground import obstacle_points
 from avoidd.perception.obstacles import Obstacle, cluster_obstacles
 from avoidd.perception.sectors import Candidates, sector_scan
+from avoidd.perception.workspace import Workspace
 from avoidd.types import BoolArray, FloatArray, FramePose, Mount, RectifiedRig, SectorScan
 
 
@@ -86,10 +88,16 @@ def perceive(
     if rectified_from_raw is not None:
         # Rectified points turn back into the physical camera's frame first.
         to_level = Pose(to_level.rotation @ rectified_from_raw.T, to_level.translation)
+    # The thread's workspace keeps the temporaries (and the points) from frame to frame.
+    workspace = Workspace.for_thread()
     points = obstacle_points(
-        depth_m, rig, to_level, pose.height_m, config.ground, config.band, max_range_m
+        depth_m, rig, to_level, pose.height_m, config.ground, config.band, max_range_m, workspace
     )
     forward, right, down = points.level
+    # The points are binned once, for the scan and the obstacle list.
+    cells = point_cells(
+        forward, right, rig.fx * rig.baseline_m, sectors.cluster_window_px, workspace
+    )
     level_from_body = body_to_level(pose.roll_deg, pose.pitch_deg).rotation
     valid_per_column = np.count_nonzero(~np.isnan(depth_m), axis=0)  # inf: measured far
     scan = sector_scan(
@@ -104,6 +112,7 @@ def perceive(
         mount,
         sectors,
         t_capture_ns,
+        cells,
     )
     obstacles: list[Obstacle] = []
     if with_obstacles:

@@ -10,6 +10,15 @@ import numpy as np
 import numpy.typing as npt
 
 from avoidd.config import SectorsConfig
+from avoidd.perception.grid import (
+    FINE_PER_BIN,
+    PointCells,
+    SizeRule,
+    nearest_cells,
+    point_cells,
+    refine,
+    sector_counts,
+)
 from avoidd.types import (
     SECTOR_COUNT,
     SECTOR_WIDTH_DEG,
@@ -117,6 +126,81 @@ def _narrow(
     return np.asarray(found & (span_m < needed_m), dtype=np.bool_)
 
 
+def _narrow_cells(
+    cells: PointCells,
+    near_px: npt.NDArray[np.float64],
+    distance_m: FloatArray,
+    fx: float,
+    window_px: float,
+    min_size_m: float,
+    visible_columns: npt.NDArray[np.integer],
+) -> npt.NDArray[np.bool_]:
+    """:func:`_narrow` on cells: the bearings of the points of the cells of each bin's slab.
+
+    A bin's members are the points of its disparity cells that meet its slab (see
+    :func:`_narrow`), counted per fine bearing (a 64th of a degree); the 5th and 95th
+    percentiles are read at the outer edges of their fine cells, so a span is never
+    underestimated by more than float rounding (a reading is never dropped for being narrow
+    when the points say it is not).
+    """
+    found = np.isfinite(distance_m)
+    if not found.any() or min_size_m <= 0:
+        return np.zeros(SECTOR_COUNT, dtype=np.bool_)
+    focal_baseline = cells.focal_baseline
+    near = np.where(found, near_px, 0.0)
+    slab_px = np.maximum(window_px, min_size_m / focal_baseline * near * near)
+    low_px, high_px = cells.edges_px()
+    degree_bin = _degree_bins(cells)
+    bottom = (near - slab_px - cells.cell_px)[degree_bin]
+    top = (near + window_px + cells.cell_px)[degree_bin]
+    member = (high_px[None, :] > bottom[:, None]) & (low_px[None, :] <= top[:, None])
+    member &= found[degree_bin][:, None]
+    chosen = member.ravel()[cells.key]
+    fine = cells.fine[chosen]
+    per_fine = np.bincount(fine, minlength=(SECTOR_COUNT + 1) * FINE_PER_BIN)
+    per_fine = per_fine[: (SECTOR_COUNT + 1) * FINE_PER_BIN].reshape(SECTOR_COUNT + 1, -1)
+    per_fine[0] += per_fine[SECTOR_COUNT]  # both hold bin 36 (+-180 degrees)
+    per_fine = np.roll(per_fine[:SECTOR_COUNT], 36, axis=0)  # row i: bin i
+    running = np.cumsum(per_fine, axis=1)
+    count = running[:, -1]
+    low_rank = np.floor(0.05 * (count - 1)).astype(np.int64)
+    high_rank = np.ceil(0.95 * (count - 1)).astype(np.int64)
+    low = np.count_nonzero(running <= low_rank[:, None], axis=1)
+    high = np.count_nonzero(running <= high_rank[:, None], axis=1) + 1
+    span_turns = np.where(count > 0, (high - low) / FINE_PER_BIN / 0.9, 0.0)
+    range_m = np.where(found, distance_m, 0.0)
+    span_m = span_turns * (2.0 * math.pi / SECTOR_COUNT) * range_m
+    needed_m = np.minimum(min_size_m - range_m / fx, 0.3 * visible_columns / fx * range_m)
+    return np.asarray(found & (span_m < needed_m), dtype=np.bool_)
+
+
+def _degree_bins(cells: PointCells) -> IntArray:
+    """Sector bin of every bearing row of ``cells.counts``."""
+    degrees = cells.counts.shape[0]
+    return np.mod((np.arange(degrees) + cells.first_degree) // 5 + 36, SECTOR_COUNT)
+
+
+def _reported_points(
+    candidates: Candidates, picked: IntArray, distance_m: FloatArray
+) -> FloatArray:
+    """(72, 3) level-frame point of each bin's reading (NaN where none).
+
+    The measured point picked in the reading's slice of disparity, moved along its bearing to
+    the reported distance (nearer than the point by at most the slice): its bearing and its
+    height.
+    """
+    level = np.full((SECTOR_COUNT, 3), np.nan, dtype=np.float32)
+    bins = np.flatnonzero(picked >= 0)
+    index = picked[bins]
+    forward = candidates.forward_m[index].astype(np.float64)
+    right = candidates.right_m[index].astype(np.float64)
+    scale = distance_m[bins] / np.maximum(np.hypot(forward, right), 1e-9)
+    level[bins, 0] = forward * scale
+    level[bins, 1] = right * scale
+    level[bins, 2] = candidates.down_m[index]
+    return level
+
+
 class Candidates(NamedTuple):
     """Obstacle points of one frame of one head (ground and out-of-band points removed).
 
@@ -144,12 +228,18 @@ def sector_scan(
     mount: Mount,
     params: SectorsConfig,
     t_capture_ns: int,
+    cells: PointCells | None = None,
 ) -> SectorScan:
     """Reduce one head's obstacle points to the 72-bin distance grid.
 
     Every point counts. A bin reports its nearest cluster of at least ``min_pixels`` points
     (see :func:`nearest_cluster`), measured horizontally from the body origin in the level
-    frame. Without one it is clear only on positive evidence: at least ``min_valid_fraction``
+    frame. The search runs on counts per (bin, disparity cell)
+    (:func:`~avoidd.perception.grid.nearest_cells`), so its cost does not grow with the points;
+    its distance is rounded toward nearer by at most about a sixteenth of the cluster window
+    in disparity, never farther. The bin's body point is a measured point of the cell read,
+    moved along its bearing to the reported distance (at its own height). Without one it is
+    clear only on positive evidence: at least ``min_valid_fraction``
     of the pixels of its image columns were measured, at least ``min_free_fraction`` of them
     show free space out to the maximum range (see
     :func:`avoidd.perception.ground.free_space_evidence`), and at most
@@ -167,6 +257,8 @@ def sector_scan(
         mount: The head's mount.
         params: Robustness parameters.
         t_capture_ns: Capture time of the frame, carried into the scan.
+        cells: The points binned by :func:`~avoidd.perception.grid.point_cells` (binned here
+            when None).
 
     Returns:
         The scan: metres, NaN unknown, ``inf`` clear, with the body point of each finite bin.
@@ -179,29 +271,35 @@ def sector_scan(
         columns.bins, weights=unresolved_per_column, minlength=SECTOR_COUNT
     )
 
-    forward, right = candidates.forward_m, candidates.right_m
-    range_m = np.sqrt(forward * forward + right * right)  # a third of np.hypot's time
-    focal_baseline = np.float32(rig.fx * rig.baseline_m)
-    bins, turns = _bins_of_points(forward, right)
-    disparity = np.asarray(focal_baseline / np.maximum(range_m, np.float32(1e-3)), np.float32)
-    nearest, picked = nearest_cluster(
-        bins,
-        disparity,
-        focal_baseline,
+    focal_baseline = float(rig.fx * rig.baseline_m)
+    if cells is None:
+        cells = point_cells(
+            candidates.forward_m, candidates.right_m, focal_baseline, params.cluster_window_px
+        )
+    rule = SizeRule(
         params.min_pixels,
         params.cluster_window_px,
         params.min_size_m / rig.baseline_m,
-        params.min_size_m / float(focal_baseline),
+        params.min_size_m / focal_baseline,
     )
+    per_bin, bin_index = sector_counts(cells)
+    # A row 72 bins from another is the same bin seen across +-180 degrees (a view wider than
+    # 355 degrees): its counts join the first.
+    merged = np.zeros((SECTOR_COUNT, per_bin.shape[1]), dtype=np.int64)
+    np.add.at(merged, bin_index, per_bin)
+    where = nearest_cells(merged, cells.first_cell, cells.cell_px, rule)
+    cell_group = np.repeat(_degree_bins(cells), cells.counts.shape[1])
+    near_px, picked = refine(cells, candidates.forward_m, candidates.right_m, cell_group, where)
+    found = np.isfinite(near_px)
+    nearest = np.full(SECTOR_COUNT, np.nan, dtype=np.float32)
+    nearest[found] = (np.float32(focal_baseline) / near_px[found]).astype(np.float32)
     # A cluster narrower than the smallest obstacle is a strip of background beside a
     # silhouette, or a sliver of an object reported in the next bin: the bin cannot vouch for
     # a reading (never look behind it: that would read farther), nor for clear space.
-    narrow = _narrow(
-        bins,
-        turns,
-        disparity,
+    narrow = _narrow_cells(
+        cells,
+        np.where(found, near_px, np.nan),
         nearest,
-        float(focal_baseline),
         rig.fx,
         params.cluster_window_px,
         params.min_size_m,
@@ -209,15 +307,12 @@ def sector_scan(
     )
     nearest[narrow] = np.nan
     picked[narrow] = -1
-    has_obstacle = np.isfinite(nearest)
+    has_obstacle = np.isfinite(nearest) & (picked >= 0)
     distance = nearest.astype(np.float32)
     points = np.full((SECTOR_COUNT, 3), np.nan, dtype=np.float32)
-    index = picked[has_obstacle]
-    level = np.stack(
-        [candidates.forward_m[index], candidates.right_m[index], candidates.down_m[index]], axis=1
-    )
+    level = _reported_points(candidates, picked, nearest)
     # Body = transpose(level_from_body) @ level; with row vectors that is level @ R.
-    points[has_obstacle] = (level @ candidates.level_from_body).astype(np.float32)
+    points[has_obstacle] = (level[has_obstacle] @ candidates.level_from_body).astype(np.float32)
 
     valid_fraction = valid_count / np.maximum(total, 1)
     free_fraction = free_count / np.maximum(total, 1)
@@ -306,23 +401,7 @@ def nearest_cluster(
     return distance, chosen
 
 
-class _SizeRule(NamedTuple):
-    """What makes a cluster (see :func:`nearest_cluster`)."""
-
-    min_pixels: int
-    window_px: float
-    min_size_px_per_px: float
-    slab_px_per_px2: float
-
-    def slab_px(self, disparity_px: npt.NDArray[np.floating]) -> npt.NDArray[np.float64]:
-        """Disparity depth of the size slab at each disparity (at least the window)."""
-        d = np.asarray(disparity_px, dtype=np.float64)
-        return np.maximum(self.window_px, self.slab_px_per_px2 * d * d)
-
-    def area_px(self, disparity_px: npt.NDArray[np.floating]) -> npt.NDArray[np.float64]:
-        """Pixel area of the size square at each disparity."""
-        side = self.min_size_px_per_px * np.asarray(disparity_px, dtype=np.float64)
-        return side * side
+_SizeRule = SizeRule
 
 
 def _no_clusters() -> tuple[FloatArray, IntArray]:
