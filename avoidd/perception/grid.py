@@ -11,13 +11,13 @@ cluster window wide; a distance read from them is rounded toward nearer, never f
 from __future__ import annotations
 
 import math
-from typing import NamedTuple
+from typing import Any, NamedTuple
 
 import numpy as np
 import numpy.typing as npt
 
 from avoidd.perception.workspace import Workspace
-from avoidd.types import SECTOR_COUNT, FloatArray
+from avoidd.types import SECTOR_COUNT, BoolArray, FloatArray
 
 IntArray = npt.NDArray[np.int64]
 
@@ -56,9 +56,11 @@ class PointCells(NamedTuple):
     """Obstacle points binned by bearing (whole degrees) and disparity.
 
     Attributes:
-        fine: (N,) fine bearing of every point: ``FINE_PER_DEGREE`` per degree, counted from
-            -182.5 degrees, so that five whole degrees make a sector bin.
-        key: (N,) flat index of every point's cell in ``counts``.
+        turns: (N,) fine bearing of every point: ``FINE_PER_DEGREE`` per degree, counted from
+            -182.5 degrees (so that five whole degrees make a sector bin); its floor is the
+            point's fine cell.
+        key: (N,) flat index of every point's cell in ``counts``; ``counts.size`` for a point
+            that is not kept.
         counts: (degrees, cells) points per cell.
         first_degree: Degree (counted from -182.5) of the first row of ``counts``.
         first_cell: Disparity cell of the first column of ``counts``.
@@ -66,7 +68,7 @@ class PointCells(NamedTuple):
         focal_baseline: ``f * B`` of the head (disparity = ``f * B / range``).
     """
 
-    fine: IntArray
+    turns: FloatArray
     key: IntArray
     counts: IntArray
     first_degree: int
@@ -79,6 +81,10 @@ class PointCells(NamedTuple):
         index = np.arange(self.first_cell, self.first_cell + self.counts.shape[1], dtype=np.float64)
         return index * self.cell_px, (index + 1.0) * self.cell_px
 
+    def table(self, values: npt.NDArray[Any], fill: Any) -> npt.NDArray[Any]:
+        """A per-cell table (flat, one entry per cell) with ``fill`` for not-kept points."""
+        return np.append(values.ravel(), np.asarray([fill], dtype=values.dtype))
+
 
 def point_cells(
     forward_m: FloatArray,
@@ -86,6 +92,8 @@ def point_cells(
     focal_baseline: float,
     window_px: float,
     workspace: Workspace | None = None,
+    kept: BoolArray | None = None,
+    horizontal2_m2: FloatArray | None = None,
 ) -> PointCells:
     """Bin points by bearing and disparity (``f * B / horizontal range``).
 
@@ -96,6 +104,9 @@ def point_cells(
         window_px: The cluster window; disparity cells are a sixteenth of it.
         workspace: Where the per-point arrays live (overwritten by its next frame); arrays
             of their own when None.
+        kept: (N,) which points count (all when None); the others get no cell, and their
+            forward and right coordinates are overwritten with zeros.
+        horizontal2_m2: (N,) ``forward**2 + right**2`` when known (and all points count).
 
     Returns:
         The cells of the points.
@@ -103,40 +114,58 @@ def point_cells(
     ws = workspace or Workspace()
     count = forward_m.size
     f32 = np.float32
+    not_kept = None
+    if kept is not None:
+        # Unkept entries (NaN for unmeasured pixels) are zeroed: NaN slows the arithmetic.
+        not_kept = np.logical_not(kept, out=ws.array("not_kept", count, np.bool_))
+        np.copyto(forward_m, f32(0.0), where=not_kept)
+        np.copyto(right_m, f32(0.0), where=not_kept)
     per_radian = f32(SECTOR_COUNT * FINE_PER_BIN / (2.0 * math.pi))
     turns = np.arctan2(right_m, forward_m, out=ws.array("turns", count, f32))
     turns *= per_radian
     turns += f32((SECTOR_COUNT + 0.5 - _FIRST_TURN) * FINE_PER_BIN)
-    fine = ws.array("fine", count, np.int64)
-    fine[...] = turns
-    key = np.right_shift(fine, _FINE_SHIFT, out=ws.array("key", count, np.int64))
-    disparity = np.multiply(forward_m, forward_m, out=ws.array("disparity", count, f32))
-    disparity += np.square(right_m, out=turns)
+    degree = np.multiply(turns, f32(1.0 / FINE_PER_DEGREE), out=ws.array("degree", count, f32))
+    np.floor(degree, out=degree)
+    disparity = ws.array("disparity", count, f32)
+    if horizontal2_m2 is None or not_kept is not None:
+        np.multiply(forward_m, forward_m, out=disparity)
+        disparity += np.square(right_m, out=ws.array("right2", count, f32))
+    else:
+        disparity[...] = horizontal2_m2
     np.sqrt(disparity, out=disparity)
     np.maximum(disparity, f32(1e-3), out=disparity)
     np.divide(f32(focal_baseline), disparity, out=disparity)
-    if count:
-        low_px, high_px = float(disparity.min()), float(disparity.max())
-        first_degree, last_degree = int(key.min()), int(key.max())
+    if not_kept is not None:
+        # Out of the extremes (fmin and fmax skip NaN) and, below, out of the counts.
+        np.copyto(disparity, f32(np.nan), where=not_kept)
+        np.copyto(degree, f32(np.nan), where=not_kept)
+    low_px = float(np.fmin.reduce(disparity, initial=np.inf))
+    high_px = float(np.fmax.reduce(disparity, initial=-np.inf))
+    if math.isfinite(low_px) and math.isfinite(high_px):
+        first_degree = int(np.fmin.reduce(degree))
+        last_degree = int(np.fmax.reduce(degree))
     else:
         low_px = high_px = 1.0
         first_degree = last_degree = 0
     cell_px = max(window_px / CELLS_PER_WINDOW, (high_px - low_px) / (MAX_CELLS - 2))
-    disparity *= f32(1.0 / cell_px)
-    cell = ws.array("cell", count, np.int64)
-    cell[...] = disparity
     first_cell = math.floor(low_px / cell_px) - 1
     cells = math.floor(high_px / cell_px) + 2 - first_cell
-    # Float rounding may put a point a cell off its true one: the first and last columns
-    # are spare, and the searches count one more cell on each side of every window.
     rows = last_degree - first_degree + 1
-    key -= first_degree
-    key *= cells
-    key += cell
-    key -= first_cell
-    np.clip(key, 0, rows * cells - 1, out=key)
-    counts = np.bincount(key, minlength=rows * cells).reshape(rows, cells)
-    return PointCells(fine, key, counts, first_degree, first_cell, cell_px, float(focal_baseline))
+    # Float rounding may put a point a cell off its true one: the first and last columns
+    # are spare, and the searches count one more cell on each side of every window. The key
+    # is exact in float32 (below 2**24).
+    disparity *= f32(1.0 / cell_px)
+    np.floor(disparity, out=disparity)
+    disparity -= f32(first_cell)
+    degree -= f32(first_degree)
+    degree *= f32(cells)
+    degree += disparity
+    if not_kept is not None:
+        np.copyto(degree, f32(rows * cells), where=not_kept)
+    key = ws.array("key", count, np.int64)
+    key[...] = degree
+    counts = np.bincount(key, minlength=rows * cells + 1)[: rows * cells].reshape(rows, cells)
+    return PointCells(turns, key, counts, first_degree, first_cell, cell_px, float(focal_baseline))
 
 
 def sector_counts(cells: PointCells) -> tuple[IntArray, IntArray]:
@@ -257,12 +286,32 @@ SUB_CELLS = 64
 """A cell read is split this many times to place the reading inside it."""
 
 
+def row_targets(cells: PointCells, row_group: IntArray, nearest: NearestCells) -> IntArray:
+    """The target table of :func:`refine` when each bearing row belongs to one group.
+
+    Args:
+        cells: The binned points.
+        row_group: (degrees,) group of every row of ``cells.counts``.
+        nearest: Each group's cell (groups index its rows).
+
+    Returns:
+        (cells.counts.size,) group of each cell read, -1 elsewhere.
+    """
+    degrees, columns = cells.counts.shape
+    target = np.full(degrees * columns, -1, dtype=np.int32)
+    wanted = nearest.cell[row_group]
+    rows = np.flatnonzero(wanted >= 0)
+    target[rows * columns + wanted[rows]] = row_group[rows]
+    return target
+
+
 def refine(
     cells: PointCells,
     forward_m: FloatArray,
     right_m: FloatArray,
-    cell_group: IntArray,
+    target: npt.NDArray[np.integer],
     nearest: NearestCells,
+    workspace: Workspace | None = None,
 ) -> tuple[npt.NDArray[np.float64], IntArray]:
     """Place each group's reading inside its cell, and pick a measured point there.
 
@@ -274,26 +323,27 @@ def refine(
         cells: The binned points.
         forward_m: Their forward coordinates.
         right_m: Their right coordinates.
-        cell_group: (degrees * cells,) group of each cell of ``cells.counts`` (-1: none).
+        target: (cells.counts.size,) the group whose reading each cell holds (-1: none).
         nearest: Each group's cell and rank (groups index its rows).
+        workspace: Where the per-point temporaries live.
 
     Returns:
         (groups,) disparity bound in pixels (NaN: no reading) and (groups,) the index of a
         measured point of the slice (-1: none).
     """
+    ws = workspace or Workspace()
     groups = nearest.cell.size
-    columns = cells.counts.shape[1]
-    column = np.arange(cells.counts.size, dtype=np.int64) % columns
-    safe_group = np.maximum(cell_group, 0)
-    wanted = nearest.cell[safe_group]
-    target = np.where((cell_group >= 0) & (wanted >= 0) & (column == wanted), cell_group, -1)
-    point_group = target[cells.key]
-    hits = np.flatnonzero(point_group >= 0)
     disparity = np.full(groups, np.nan)
     chosen = np.full(groups, -1, dtype=np.int64)
+    if not (nearest.cell >= 0).any():
+        return disparity, chosen
+    count = cells.key.size
+    table = cells.table(np.asarray(target, dtype=np.int32), -1)
+    point_group = np.take(table, cells.key, out=ws.array("point_group", count, np.int32))
+    hits = np.flatnonzero(np.greater_equal(point_group, 0, out=ws.array("hit", count, np.bool_)))
     if hits.size == 0:
         return disparity, chosen
-    group = point_group[hits]
+    group = point_group[hits].astype(np.int64)
     forward, right = forward_m[hits], right_m[hits]
     range_m = np.maximum(np.sqrt(forward * forward + right * right), np.float32(1e-3))
     scaled = (np.float32(cells.focal_baseline) / range_m) * np.float32(1.0 / cells.cell_px)

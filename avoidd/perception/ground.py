@@ -24,11 +24,14 @@ class ObstaclePoints(NamedTuple):
         level: Their level-frame coordinates, (N,) each, in row-major pixel order.
         free_per_column: (W,) pixels per column that show free space (see
             :func:`free_space_evidence`).
+        horizontal2_m2: With ``whole_image``: (H * W,) squared horizontal range of every
+            pixel's point (None otherwise).
     """
 
     mask: BoolArray
     level: Components
     free_per_column: npt.NDArray[np.int64]
+    horizontal2_m2: FloatArray | None = None
 
 
 def obstacle_points(
@@ -40,6 +43,7 @@ def obstacle_points(
     band: BandConfig,
     max_range_m: float,
     workspace: Workspace | None = None,
+    whole_image: bool = False,
 ) -> ObstaclePoints:
     """Pixels whose point may belong to an obstacle, with their level-frame points.
 
@@ -69,6 +73,10 @@ def obstacle_points(
         workspace: Where the temporaries and the points live (see
             :mod:`avoidd.perception.workspace`: the points are overwritten by its next frame);
             arrays of their own when None. The mask is always a new array.
+        whole_image: Give the points of every pixel (``level`` and ``horizontal2_m2`` are
+            (H * W,), the mask says which are kept) instead of gathering the kept ones: the
+            sector scan and the obstacle list then cost the same whatever share of the image
+            is obstacle, and no gather is paid when most of it is.
 
     Returns:
         The kept pixels and their points.
@@ -120,6 +128,9 @@ def obstacle_points(
         depth_m, forward_map, right_map, down_map, camera_down, band, max_range_m, ws
     )
     free_per_column = np.count_nonzero(free, axis=0).astype(np.int64)
+    if whole_image:
+        level = Components(forward.ravel(), right.ravel(), rise.ravel())
+        return ObstaclePoints(keep, level, free_per_column, scratch.ravel())
     # Gathering by index is several times faster than a boolean mask on a scattered one.
     kept = np.flatnonzero(keep)
     count = kept.size

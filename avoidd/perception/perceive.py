@@ -90,13 +90,30 @@ def perceive(
         to_level = Pose(to_level.rotation @ rectified_from_raw.T, to_level.translation)
     # The thread's workspace keeps the temporaries (and the points) from frame to frame.
     workspace = Workspace.for_thread()
+    # Every pixel is a point here (the mask says which are kept): no gather, and a cost that
+    # does not depend on how much of the image is obstacle.
     points = obstacle_points(
-        depth_m, rig, to_level, pose.height_m, config.ground, config.band, max_range_m, workspace
+        depth_m,
+        rig,
+        to_level,
+        pose.height_m,
+        config.ground,
+        config.band,
+        max_range_m,
+        workspace,
+        whole_image=True,
     )
     forward, right, down = points.level
+    kept = points.mask.ravel()
     # The points are binned once, for the scan and the obstacle list.
     cells = point_cells(
-        forward, right, rig.fx * rig.baseline_m, sectors.cluster_window_px, workspace
+        forward,
+        right,
+        rig.fx * rig.baseline_m,
+        sectors.cluster_window_px,
+        workspace,
+        kept,
+        points.horizontal2_m2,
     )
     level_from_body = body_to_level(pose.roll_deg, pose.pitch_deg).rotation
     valid_per_column = np.count_nonzero(~np.isnan(depth_m), axis=0)  # inf: measured far
@@ -113,17 +130,23 @@ def perceive(
         sectors,
         t_capture_ns,
         cells,
+        workspace,
     )
     obstacles: list[Obstacle] = []
     if with_obstacles:
+        above_ground = np.subtract(
+            np.float32(pose.height_m), down, out=workspace.array("above", down.size, np.float32)
+        )
         obstacles = cluster_obstacles(
             forward,
             right,
-            np.float32(pose.height_m) - down,
+            above_ground,
             rig.fx * rig.baseline_m,
             rig.baseline_m,
             config.obstacles,
             sectors,
             histogram,
+            cells,
+            workspace,
         )
-    return Perception(scan, obstacles, int(forward.size), pose, points.mask)
+    return Perception(scan, obstacles, int(np.count_nonzero(kept)), pose, points.mask)

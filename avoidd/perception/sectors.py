@@ -12,13 +12,16 @@ import numpy.typing as npt
 from avoidd.config import SectorsConfig
 from avoidd.perception.grid import (
     FINE_PER_BIN,
+    NearestCells,
     PointCells,
     SizeRule,
     nearest_cells,
     point_cells,
     refine,
+    row_targets,
     sector_counts,
 )
+from avoidd.perception.workspace import Workspace
 from avoidd.types import (
     SECTOR_COUNT,
     SECTOR_WIDTH_DEG,
@@ -134,14 +137,17 @@ def _narrow_cells(
     window_px: float,
     min_size_m: float,
     visible_columns: npt.NDArray[np.integer],
+    workspace: Workspace | None = None,
 ) -> npt.NDArray[np.bool_]:
     """:func:`_narrow` on cells: the bearings of the points of the cells of each bin's slab.
 
     A bin's members are the points of its disparity cells that meet its slab (see
-    :func:`_narrow`), counted per fine bearing (a 64th of a degree); the 5th and 95th
-    percentiles are read at the outer edges of their fine cells, so a span is never
-    underestimated by more than float rounding (a reading is never dropped for being narrow
-    when the points say it is not).
+    :func:`_narrow`). Their 5th and 95th percentile bearings are first read on whole degrees
+    (the rows of ``cells.counts``): that bounds the span within two degrees, which decides
+    almost every bin (a bin filled by a surface is far wider than the smallest obstacle). Only
+    the bins left undecided count their members' bearings in 64ths of a degree, one pass over
+    the points. Percentiles are read at the outer edges of their cells, so a span is never
+    underestimated (a reading is not dropped as narrow when its points are not).
     """
     found = np.isfinite(distance_m)
     if not found.any() or min_size_m <= 0:
@@ -155,23 +161,54 @@ def _narrow_cells(
     top = (near + window_px + cells.cell_px)[degree_bin]
     member = (high_px[None, :] > bottom[:, None]) & (low_px[None, :] <= top[:, None])
     member &= found[degree_bin][:, None]
-    chosen = member.ravel()[cells.key]
-    fine = cells.fine[chosen]
+    per_degree = np.where(member, cells.counts, 0).sum(axis=1)
+    range_m = np.where(found, distance_m, 0.0)
+    needed_m = np.minimum(min_size_m - range_m / fx, 0.3 * visible_columns / fx * range_m)
+    metres_per_turn = (2.0 * math.pi / SECTOR_COUNT) * range_m
+    # Whole degrees: the span lies within (high - low - 1, high - low + 1) degrees.
+    per_bin_degree = np.zeros((SECTOR_COUNT, 5), dtype=np.int64)
+    np.add.at(
+        per_bin_degree,
+        (degree_bin, (np.arange(degree_bin.size) + cells.first_degree) % 5),
+        per_degree,
+    )
+    low, high = _percentile_cells(per_bin_degree)
+    least_m = np.maximum(high - low - 1, 0) / 5 / 0.9 * metres_per_turn
+    most_m = (high - low + 1) / 5 / 0.9 * metres_per_turn
+    narrow: npt.NDArray[np.bool_] = np.asarray(found & (most_m < needed_m), dtype=np.bool_)
+    undecided = found & ~narrow & (least_m < needed_m)
+    if not undecided.any():
+        return narrow
+    # The undecided bins, in 64ths of a degree.
+    member &= undecided[degree_bin][:, None]
+    count = cells.key.size
+    ws = workspace or Workspace()
+    chosen = np.take(cells.table(member, False), cells.key, out=ws.array("member", count, np.bool_))
+    fine = cells.turns[np.flatnonzero(chosen)].astype(np.int64)
     per_fine = np.bincount(fine, minlength=(SECTOR_COUNT + 1) * FINE_PER_BIN)
     per_fine = per_fine[: (SECTOR_COUNT + 1) * FINE_PER_BIN].reshape(SECTOR_COUNT + 1, -1)
     per_fine[0] += per_fine[SECTOR_COUNT]  # both hold bin 36 (+-180 degrees)
     per_fine = np.roll(per_fine[:SECTOR_COUNT], 36, axis=0)  # row i: bin i
-    running = np.cumsum(per_fine, axis=1)
-    count = running[:, -1]
-    low_rank = np.floor(0.05 * (count - 1)).astype(np.int64)
-    high_rank = np.ceil(0.95 * (count - 1)).astype(np.int64)
+    low, high = _percentile_cells(per_fine)
+    span_m = (high - low) / FINE_PER_BIN / 0.9 * metres_per_turn
+    narrow[undecided] = span_m[undecided] < needed_m[undecided]
+    return narrow
+
+
+def _percentile_cells(counts: IntArray) -> tuple[IntArray, IntArray]:
+    """Per row, the lower edge of the cell of the 5th percentile and the upper of the 95th.
+
+    ``np.percentile`` interpolates between the values at ranks ``floor`` and ``ceil`` of
+    ``q (n - 1)``: those lie within the cells returned. Rows without points give (0, 0).
+    """
+    running = np.cumsum(counts, axis=1)
+    total = running[:, -1]
+    low_rank = np.floor(0.05 * (total - 1)).astype(np.int64)
+    high_rank = np.ceil(0.95 * (total - 1)).astype(np.int64)
     low = np.count_nonzero(running <= low_rank[:, None], axis=1)
     high = np.count_nonzero(running <= high_rank[:, None], axis=1) + 1
-    span_turns = np.where(count > 0, (high - low) / FINE_PER_BIN / 0.9, 0.0)
-    range_m = np.where(found, distance_m, 0.0)
-    span_m = span_turns * (2.0 * math.pi / SECTOR_COUNT) * range_m
-    needed_m = np.minimum(min_size_m - range_m / fx, 0.3 * visible_columns / fx * range_m)
-    return np.asarray(found & (span_m < needed_m), dtype=np.bool_)
+    empty = total == 0
+    return np.where(empty, 0, low), np.where(empty, 0, high)
 
 
 def _degree_bins(cells: PointCells) -> IntArray:
@@ -229,6 +266,7 @@ def sector_scan(
     params: SectorsConfig,
     t_capture_ns: int,
     cells: PointCells | None = None,
+    workspace: Workspace | None = None,
 ) -> SectorScan:
     """Reduce one head's obstacle points to the 72-bin distance grid.
 
@@ -259,6 +297,7 @@ def sector_scan(
         t_capture_ns: Capture time of the frame, carried into the scan.
         cells: The points binned by :func:`~avoidd.perception.grid.point_cells` (binned here
             when None).
+        workspace: Where per-point temporaries live (see :mod:`avoidd.perception.workspace`).
 
     Returns:
         The scan: metres, NaN unknown, ``inf`` clear, with the body point of each finite bin.
@@ -283,13 +322,24 @@ def sector_scan(
         params.min_size_m / focal_baseline,
     )
     per_bin, bin_index = sector_counts(cells)
-    # A row 72 bins from another is the same bin seen across +-180 degrees (a view wider than
-    # 355 degrees): its counts join the first.
-    merged = np.zeros((SECTOR_COUNT, per_bin.shape[1]), dtype=np.int64)
-    np.add.at(merged, bin_index, per_bin)
-    where = nearest_cells(merged, cells.first_cell, cells.cell_px, rule)
-    cell_group = np.repeat(_degree_bins(cells), cells.counts.shape[1])
-    near_px, picked = refine(cells, candidates.forward_m, candidates.right_m, cell_group, where)
+    # A bin is one row; a row 72 bins from another is the same bin seen across +-180 degrees
+    # (a view wider than 355 degrees): its counts join the other's.
+    bins, row_of = np.unique(bin_index, return_inverse=True)
+    merged = np.zeros((bins.size, per_bin.shape[1]), dtype=np.int64)
+    np.add.at(merged, row_of, per_bin)
+    found_rows = nearest_cells(merged, cells.first_cell, cells.cell_px, rule)
+    where = NearestCells(
+        np.full(SECTOR_COUNT, -1, dtype=np.int64), np.full(SECTOR_COUNT, -1, dtype=np.int64)
+    )
+    where.cell[bins], where.rank[bins] = found_rows.cell, found_rows.rank
+    near_px, picked = refine(
+        cells,
+        candidates.forward_m,
+        candidates.right_m,
+        row_targets(cells, _degree_bins(cells), where),
+        where,
+        workspace,
+    )
     found = np.isfinite(near_px)
     nearest = np.full(SECTOR_COUNT, np.nan, dtype=np.float32)
     nearest[found] = (np.float32(focal_baseline) / near_px[found]).astype(np.float32)
@@ -304,6 +354,7 @@ def sector_scan(
         params.cluster_window_px,
         params.min_size_m,
         np.bincount(columns.bins, minlength=SECTOR_COUNT),
+        workspace,
     )
     nearest[narrow] = np.nan
     picked[narrow] = -1
