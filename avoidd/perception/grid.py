@@ -106,7 +106,7 @@ def point_cells(
             of their own when None.
         kept: (N,) which points count (all when None); the others get no cell, and their
             forward and right coordinates are overwritten with zeros.
-        horizontal2_m2: (N,) ``forward**2 + right**2`` when known (and all points count).
+        horizontal2_m2: (N,) ``forward**2 + right**2`` when known (for the kept points).
 
     Returns:
         The cells of the points.
@@ -127,12 +127,13 @@ def point_cells(
     degree = np.multiply(turns, f32(1.0 / FINE_PER_DEGREE), out=ws.array("degree", count, f32))
     np.floor(degree, out=degree)
     disparity = ws.array("disparity", count, f32)
-    if horizontal2_m2 is None or not_kept is not None:
+    if horizontal2_m2 is None:
         np.multiply(forward_m, forward_m, out=disparity)
         disparity += np.square(right_m, out=ws.array("right2", count, f32))
+        np.sqrt(disparity, out=disparity)
     else:
-        disparity[...] = horizontal2_m2
-    np.sqrt(disparity, out=disparity)
+        with np.errstate(invalid="ignore"):
+            np.sqrt(horizontal2_m2, out=disparity)
     np.maximum(disparity, f32(1e-3), out=disparity)
     np.divide(f32(focal_baseline), disparity, out=disparity)
     if not_kept is not None:
@@ -216,7 +217,8 @@ def nearest_cells(
 
     Returns:
         Per row, the cell holding the bound and the rank in it (see :func:`refine`, which
-        places the bound inside the cell).
+        places the bound inside the cell), and the lowest and highest cells the seed may lie
+        in (lowest -1: no cell is surely dense, the seed may lie anywhere below the highest).
     """
     rows, columns = counts.shape
     needed = (
@@ -225,7 +227,8 @@ def nearest_cells(
         else np.asarray(min_pixels, dtype=np.int64)
     )
     if rows == 0 or columns == 0:
-        return NearestCells(np.full(rows, -1, dtype=np.int64), np.full(rows, -1, dtype=np.int64))
+        none = np.full(rows, -1, dtype=np.int64)
+        return NearestCells(none, none.copy(), none.copy(), none.copy())
     running = np.cumsum(counts, axis=1)
     # at[:, j + 1] = running[:, j]; at[:, 0] = 0: running "before" any column, clipped.
     at = np.concatenate([np.zeros((rows, 1), dtype=np.int64), running], axis=1)
@@ -266,7 +269,11 @@ def nearest_cells(
     picked = np.count_nonzero(at_or_above > fewest[:, None], axis=1) - 1
     picked = np.where(found, picked, -1)
     above = total[:, 0] - running[np.arange(rows), np.maximum(picked, 0)]
-    return NearestCells(picked, np.where(found, fewest - above, -1))
+    has_surely = surely.any(axis=1)
+    lowest = np.where(found & has_surely, lowest, np.where(found, -1, -1))
+    return NearestCells(
+        picked, np.where(found, fewest - above, -1), lowest, np.where(found, highest, -1)
+    )
 
 
 class NearestCells(NamedTuple):
@@ -280,6 +287,14 @@ class NearestCells(NamedTuple):
 
     cell: IntArray
     rank: IntArray
+    lowest: IntArray | None = None
+    highest: IntArray | None = None
+
+    def ambiguous(self) -> npt.NDArray[np.bool_]:
+        """Rows whose seed may lie in more than two cells (a cell or more apart)."""
+        if self.lowest is None or self.highest is None:
+            return np.zeros(self.cell.size, dtype=np.bool_)
+        return np.asarray((self.cell >= 0) & (self.highest - self.lowest > 1), dtype=np.bool_)
 
 
 SUB_CELLS = 64

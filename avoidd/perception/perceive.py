@@ -116,7 +116,8 @@ def perceive(
         points.horizontal2_m2,
     )
     level_from_body = body_to_level(pose.roll_deg, pose.pitch_deg).rotation
-    valid_per_column = np.count_nonzero(~np.isnan(depth_m), axis=0)  # inf: measured far
+    unmeasured = np.isnan(depth_m, out=workspace.array("unmeasured", depth_m.shape, np.bool_))
+    valid_per_column = depth_m.shape[0] - np.count_nonzero(unmeasured, axis=0)  # inf: far
     scan = sector_scan(
         Candidates(forward, right, down, level_from_body),
         valid_per_column,

@@ -211,6 +211,99 @@ def _percentile_cells(counts: IntArray) -> tuple[IntArray, IntArray]:
     return np.where(empty, 0, low), np.where(empty, 0, high)
 
 
+_SEARCH_MAX_POINTS = 8192
+"""At most this many points are searched one by one in a frame (the bins with the fewest)."""
+_SEARCH_MIN_ERROR = 0.005
+"""Bins whose reading the counts place within this share of its disparity are not searched."""
+
+
+def _worth_searching(
+    cells: PointCells, found_rows: NearestCells, counts: IntArray, rule: SizeRule
+) -> npt.NDArray[np.bool_]:
+    """Rows whose reading the points should decide (see :func:`_search_points`).
+
+    Those where no cell is surely dense (the counts may have found a cluster the points do
+    not make), and those where the seed's possible cells span more than half a percent of its
+    disparity, fewest points first while at most ``_SEARCH_MAX_POINTS`` are to be searched.
+    A row left out keeps its reading from the counts: never farther, nearer by at most its
+    span. A dense surface leaves nothing to search: its top cell is surely dense.
+    """
+    unsure = found_rows.ambiguous()
+    if not unsure.any():
+        return unsure
+    assert found_rows.lowest is not None and found_rows.highest is not None
+    high_px = cells.edges_px()[1]
+    span_px = (found_rows.highest - found_rows.lowest + 1) * cells.cell_px
+    no_seed = found_rows.lowest < 0
+    unsure &= no_seed | (span_px > _SEARCH_MIN_ERROR * high_px[np.maximum(found_rows.highest, 0)])
+    # Points to search per row: its cells from the lowest candidate down by a slab, up.
+    reach_cells = np.ceil(
+        rule.slab_px(high_px[np.maximum(found_rows.highest, 0)]) / cells.cell_px
+    ).astype(np.int64)
+    start = np.where(no_seed, 0, np.maximum(found_rows.lowest - reach_cells - 2, 0))
+    running = np.cumsum(counts, axis=1)
+    end = np.maximum(found_rows.highest, 0) + 1
+    rows = np.arange(counts.shape[0])
+    size = running[rows, np.minimum(end, counts.shape[1] - 1)] - np.where(
+        start > 0, running[rows, np.maximum(start - 1, 0)], 0
+    )
+    total = 0
+    for row in np.flatnonzero(unsure)[np.argsort(size[unsure], kind="stable")]:
+        if total + size[row] > _SEARCH_MAX_POINTS:
+            unsure[row] = False
+        else:
+            total += int(size[row])
+    return unsure
+
+
+def _search_points(
+    cells: PointCells,
+    candidates: Candidates,
+    rule: SizeRule,
+    unsure_bins: IntArray,
+    found_rows: NearestCells,
+    rows_unsure: npt.NDArray[np.bool_],
+    near_px: npt.NDArray[np.float64],
+    picked: IntArray,
+) -> None:
+    """:func:`nearest_cluster` on the points that can decide the unsure bins (in place).
+
+    A bin's seed lies at or below its highest possible cell and at or above its lowest surely
+    dense one (the bottom when there is none); a seed's window and slab reach at most the
+    slab below it, and points above never count in a window (it looks farther only). The
+    points of those cells are exactly the ones the search on all points would weigh.
+    """
+    assert found_rows.lowest is not None and found_rows.highest is not None
+    low_px, high_px = cells.edges_px()
+    top = np.full(SECTOR_COUNT, -np.inf)
+    bottom = np.full(SECTOR_COUNT, np.inf)
+    highest = found_rows.highest[rows_unsure]
+    lowest = found_rows.lowest[rows_unsure]
+    top_px = high_px[highest] + cells.cell_px
+    low_seed_px = np.where(lowest >= 0, low_px[np.maximum(lowest, 0)], -np.inf)
+    reach_px = rule.slab_px(np.asarray(top_px)) + 2 * cells.cell_px
+    top[unsure_bins] = top_px
+    bottom[unsure_bins] = low_seed_px - reach_px
+    degree_bin = _degree_bins(cells)
+    table = (low_px[None, :] <= top[degree_bin][:, None]) & (
+        high_px[None, :] >= bottom[degree_bin][:, None]
+    )
+    chosen = np.flatnonzero(cells.table(table, False)[cells.key])
+    forward = candidates.forward_m[chosen]
+    right = candidates.right_m[chosen]
+    range_m = np.maximum(np.sqrt(forward * forward + right * right), np.float32(1e-3))
+    disparity = np.asarray(np.float32(cells.focal_baseline) / range_m, np.float32)
+    bins = degree_bin[cells.key[chosen] // cells.counts.shape[1]]
+    distance, index = nearest_cluster(bins, disparity, cells.focal_baseline, *rule)
+    for b in unsure_bins:
+        if np.isfinite(distance[b]) and index[b] >= 0:
+            near_px[b] = float(disparity[index[b]])
+            picked[b] = chosen[index[b]]
+        else:
+            near_px[b] = np.nan
+            picked[b] = -1
+
+
 def _degree_bins(cells: PointCells) -> IntArray:
     """Sector bin of every bearing row of ``cells.counts``."""
     degrees = cells.counts.shape[0]
@@ -340,6 +433,14 @@ def sector_scan(
         where,
         workspace,
     )
+    rows_unsure = _worth_searching(cells, found_rows, merged, rule)
+    if rows_unsure.any():
+        # Where the counts leave the seed's cell open (scattered points that nearly make a
+        # nearer cluster), the points of those bins' candidate cells decide, as the search on
+        # all points would.
+        _search_points(
+            cells, candidates, rule, bins[rows_unsure], found_rows, rows_unsure, near_px, picked
+        )
     found = np.isfinite(near_px)
     nearest = np.full(SECTOR_COUNT, np.nan, dtype=np.float32)
     nearest[found] = (np.float32(focal_baseline) / near_px[found]).astype(np.float32)
