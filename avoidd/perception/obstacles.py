@@ -104,31 +104,33 @@ def cluster_obstacles(
     if int(counts.sum()) < params.min_points:
         return []
     degrees, columns = counts.shape
+    ws = workspace or Workspace()
     per_row = max(1, round(params.bearing_cell_deg))
     per_column = max(1, round(params.disparity_cell_px / cells.cell_px))
     rows_c = -(-degrees // per_row)
     columns_c = -(-columns // per_column)
-    padded = np.zeros((rows_c * per_row, columns_c * per_column), dtype=np.int64)
-    padded[:degrees, :columns] = counts
-    coarse = padded.reshape(rows_c, per_row, columns_c, per_column).sum(axis=(1, 3))
-    occupied = (coarse > 0).astype(np.uint8)
+    # Everything below runs on the occupied cells only (a few thousand at most).
+    occupied_cells = np.flatnonzero(counts)
+    cell_row, cell_column = np.divmod(occupied_cells, columns)
+    cell_count = counts.ravel()[occupied_cells]
+    occupied = np.zeros((rows_c, columns_c), dtype=np.uint8)
+    occupied[cell_row // per_row, cell_column // per_column] = 1
     count, labels = cv2.connectedComponents(occupied, connectivity=8, ltype=cv2.CV_32S)
-    cell_label = np.repeat(np.repeat(labels, per_row, axis=0), per_column, axis=1)
-    cell_label = cell_label[:degrees, :columns]
-    sizes = np.bincount(cell_label.ravel(), weights=counts.ravel(), minlength=count)
+    cell_label = labels[cell_row // per_row, cell_column // per_column]
+    sizes = np.bincount(cell_label, weights=cell_count, minlength=count)
     kept = [label for label in range(1, count) if sizes[label] >= params.min_points]
     if not kept:
         return []
     which = np.full(count, -1, dtype=np.int64)
     which[kept] = np.arange(len(kept))
-    component = which[cell_label]  # (degrees, columns): kept component of each cell, or -1
-    member = component >= 0
+    cell_component = which[cell_label]  # kept component of each occupied cell, or -1
+    member = cell_component >= 0
     groups = len(kept)
-    comp_index = component[member]
+    comp_index = cell_component[member]
     per_disparity = np.zeros((groups, columns), dtype=np.int64)
-    np.add.at(per_disparity, (comp_index, np.nonzero(member)[1]), counts[member])
+    np.add.at(per_disparity, (comp_index, cell_column[member]), cell_count[member])
     per_degree = np.zeros((groups, degrees), dtype=np.int64)
-    np.add.at(per_degree, (comp_index, np.nonzero(member)[0]), counts[member])
+    np.add.at(per_degree, (comp_index, cell_row[member]), cell_count[member])
     points = per_disparity.sum(axis=1)
     rule = SizeRule(
         sectors.min_pixels,
@@ -143,14 +145,25 @@ def cluster_obstacles(
         rule,
         np.minimum(sectors.min_pixels, points),
     )
-    column = np.arange(columns)[None, :]
-    wanted = nearest.cell[np.maximum(component, 0)]
-    target = np.where(member & (wanted >= 0) & (column == wanted), component, -1)
-    ws = workspace or Workspace()
-    near_px, chosen = refine(cells, forward_m, right_m, target.ravel(), nearest, ws)
+    component = ws.array("component", degrees * columns, np.int32)
+    component.fill(-1)
+    component[occupied_cells] = cell_component
+    target = ws.array("component_target", degrees * columns, np.int32)
+    target.fill(-1)
+    read = member & (cell_column == nearest.cell[np.maximum(cell_component, 0)])
+    target[occupied_cells[read]] = cell_component[read]
+    near_px, chosen = refine(cells, forward_m, right_m, target, nearest, ws)
     bottom, top = _height_extents(cells, component, above_ground_m, groups, ws)
+    component = component.reshape(degrees, columns)
     low_px, high_px = cells.edges_px()
     middle_px = (low_px + high_px) / 2
+    # Each disparity cell's range lands in one bin of the range histogram.
+    edges = np.linspace(histogram.min_m, histogram.max_m, histogram.bins + 1)
+    with np.errstate(divide="ignore"):
+        cell_range = focal_baseline / middle_px
+    bin_of = np.searchsorted(edges, cell_range, side="right") - 1
+    bin_of[cell_range == edges[-1]] = histogram.bins - 1
+    inside = (bin_of >= 0) & (bin_of < histogram.bins)
     obstacles = []
     for k in range(groups):
         if not np.isfinite(near_px[k]) or chosen[k] < 0:
@@ -175,12 +188,6 @@ def cluster_obstacles(
             median_px = _weighted_quantiles(middle_px, in_row, (50.0,))[0]
             range_m = focal_baseline / max(median_px, 1e-9)
             width += sign * range_m * math.sin(math.radians(bearing - centre_deg))
-        edges = np.linspace(histogram.min_m, histogram.max_m, histogram.bins + 1)
-        with np.errstate(divide="ignore"):
-            cell_range = focal_baseline / middle_px
-        bin_of = np.searchsorted(edges, cell_range, side="right") - 1
-        bin_of[cell_range == edges[-1]] = histogram.bins - 1
-        inside = (bin_of >= 0) & (bin_of < histogram.bins)
         counts_h = np.bincount(
             bin_of[inside], weights=per_disparity[k][inside], minlength=histogram.bins
         )
@@ -228,7 +235,7 @@ def _weighted_quantiles(
 
 def _height_extents(
     cells: PointCells,
-    component: npt.NDArray[np.int64],
+    component: npt.NDArray[np.int32],
     above_ground_m: FloatArray,
     groups: int,
     workspace: Workspace,
@@ -236,12 +243,16 @@ def _height_extents(
     """2nd and 98th percentile height of every component, on centimetre cells (one pass)."""
     count = cells.key.size
     ws = workspace
-    table = cells.table(component.astype(np.int32), -1)
+    table = cells.table(component, -1)
     owner = np.take(table, cells.key, out=ws.array("owner", count, np.int32))
-    missing = np.less(owner, 0, out=ws.array("owner_missing", count, np.bool_))
-    heights = ws.array("heights", count, np.float32)
-    heights[...] = above_ground_m
-    np.copyto(heights, np.float32(np.nan), where=missing)
+    # 1 where a point belongs to a kept component, NaN elsewhere (no masked copies: slow on
+    # a scattered mask).
+    owned = np.take(
+        np.array([np.nan, 1.0], dtype=np.float32),
+        np.greater_equal(owner, 0, out=ws.array("owned", count, np.bool_)).view(np.uint8),
+        out=ws.array("owned_or_nan", count, np.float32),
+    )
+    heights = np.multiply(above_ground_m, owned, out=ws.array("heights", count, np.float32))
     low = float(np.fmin.reduce(heights, initial=np.inf))
     high = float(np.fmax.reduce(heights, initial=-np.inf))
     if not (math.isfinite(low) and math.isfinite(high)):
@@ -253,7 +264,8 @@ def _height_extents(
     scaled = ws.array("owner_key", count, np.float32)
     np.multiply(owner, np.float32(cells_h), out=scaled)
     scaled += heights
-    np.copyto(scaled, np.float32(groups * cells_h), where=missing)
+    scaled *= owned
+    np.fmin(scaled, np.float32(groups * cells_h), out=scaled)  # NaN: the spare cell
     key = ws.array("height_key", count, np.int64)
     key[...] = scaled
     per_height = np.bincount(key, minlength=groups * cells_h + 1)[: groups * cells_h]

@@ -18,6 +18,9 @@ from avoidd.perception.sectors import Candidates, sector_scan
 from avoidd.perception.workspace import Workspace
 from avoidd.types import BoolArray, FloatArray, FramePose, Mount, RectifiedRig, SectorScan
 
+_GATHER_BELOW = 0.4
+"""Below this share of kept pixels the points are gathered before binning (cheaper then)."""
+
 
 class Perception(NamedTuple):
     """What one head saw in one frame.
@@ -90,8 +93,10 @@ def perceive(
         to_level = Pose(to_level.rotation @ rectified_from_raw.T, to_level.translation)
     # The thread's workspace keeps the temporaries (and the points) from frame to frame.
     workspace = Workspace.for_thread()
-    # Every pixel is a point here (the mask says which are kept): no gather, and a cost that
-    # does not depend on how much of the image is obstacle.
+    # Every pixel comes back as a point (the mask says which are kept). When most are kept
+    # (a wall filling the view), they are binned in place: no gather, and the cost is that of
+    # the whole image whatever share of it is obstacle. When few are, gathering them first
+    # is cheaper.
     points = obstacle_points(
         depth_m,
         rig,
@@ -104,7 +109,17 @@ def perceive(
         whole_image=True,
     )
     forward, right, down = points.level
-    kept = points.mask.ravel()
+    mask = points.mask.ravel()
+    candidates = int(np.count_nonzero(mask))
+    kept: npt.NDArray[np.bool_] | None = mask
+    horizontal2 = points.horizontal2_m2
+    if candidates < _GATHER_BELOW * mask.size:
+        index = np.flatnonzero(mask)
+        f32 = np.float32
+        forward = np.take(forward, index, out=workspace.array("kept_forward", candidates, f32))
+        right = np.take(right, index, out=workspace.array("kept_right", candidates, f32))
+        down = np.take(down, index, out=workspace.array("kept_down", candidates, f32))
+        kept = horizontal2 = None
     # The points are binned once, for the scan and the obstacle list.
     cells = point_cells(
         forward,
@@ -113,7 +128,7 @@ def perceive(
         sectors.cluster_window_px,
         workspace,
         kept,
-        points.horizontal2_m2,
+        horizontal2,
     )
     level_from_body = body_to_level(pose.roll_deg, pose.pitch_deg).rotation
     unmeasured = np.isnan(depth_m, out=workspace.array("unmeasured", depth_m.shape, np.bool_))
@@ -150,4 +165,4 @@ def perceive(
             cells,
             workspace,
         )
-    return Perception(scan, obstacles, int(np.count_nonzero(kept)), pose, points.mask)
+    return Perception(scan, obstacles, candidates, pose, points.mask)
