@@ -213,29 +213,26 @@ def _percentile_cells(counts: IntArray) -> tuple[IntArray, IntArray]:
 
 _SEARCH_MAX_POINTS = 8192
 """At most this many points are searched one by one in a frame (the bins with the fewest)."""
-_SEARCH_MIN_ERROR = 0.005
-"""Bins whose reading the counts place within this share of its disparity are not searched."""
 
 
 def _worth_searching(
     cells: PointCells, found_rows: NearestCells, counts: IntArray, rule: SizeRule
 ) -> npt.NDArray[np.bool_]:
-    """Rows whose reading the points should decide (see :func:`_search_points`).
+    """Rows whose reading the points decide (see :func:`_search_points`).
 
-    Those where no cell is surely dense (the counts may have found a cluster the points do
-    not make), and those where the seed's possible cells span more than half a percent of its
-    disparity, fewest points first while at most ``_SEARCH_MAX_POINTS`` are to be searched.
-    A row left out keeps its reading from the counts: never farther, nearer by at most its
-    span. A dense surface leaves nothing to search: its top cell is surely dense.
+    Every bin with a reading whose points near its seed fit, fewest first, within
+    ``_SEARCH_MAX_POINTS`` a frame, those whose seed the counts leave open first (no cell is
+    surely dense, or the seed may lie in more than two cells). A row left out keeps its
+    reading from the counts: never farther, nearer by about a cell at most when one surface
+    fills the window. A surface filling the view leaves its bins to the counts, so the cost
+    stays bounded.
     """
-    unsure = found_rows.ambiguous()
-    if not unsure.any():
-        return unsure
+    found = found_rows.cell >= 0
+    if not found.any():
+        return found
     assert found_rows.lowest is not None and found_rows.highest is not None
     high_px = cells.edges_px()[1]
-    span_px = (found_rows.highest - found_rows.lowest + 1) * cells.cell_px
     no_seed = found_rows.lowest < 0
-    unsure &= no_seed | (span_px > _SEARCH_MIN_ERROR * high_px[np.maximum(found_rows.highest, 0)])
     # Points to search per row: its cells from the lowest candidate down by a slab, up.
     reach_cells = np.ceil(
         rule.slab_px(high_px[np.maximum(found_rows.highest, 0)]) / cells.cell_px
@@ -247,13 +244,15 @@ def _worth_searching(
     size = running[rows, np.minimum(end, counts.shape[1] - 1)] - np.where(
         start > 0, running[rows, np.maximum(start - 1, 0)], 0
     )
+    unsure = found_rows.ambiguous()
+    order = np.lexsort((size, ~unsure))  # the open ones first, then by size
+    chosen = np.zeros(found.size, dtype=np.bool_)
     total = 0
-    for row in np.flatnonzero(unsure)[np.argsort(size[unsure], kind="stable")]:
-        if total + size[row] > _SEARCH_MAX_POINTS:
-            unsure[row] = False
-        else:
+    for row in order:
+        if found[row] and total + size[row] <= _SEARCH_MAX_POINTS:
+            chosen[row] = True
             total += int(size[row])
-    return unsure
+    return chosen
 
 
 def _search_points(
