@@ -85,50 +85,6 @@ def _bins_of_points(forward_m: FloatArray, right_m: FloatArray) -> tuple[IntArra
     return np.remainder(turns.astype(np.int64), SECTOR_COUNT), turns
 
 
-def _narrow(
-    bins: IntArray,
-    turns: FloatArray,
-    disparity_px: FloatArray,
-    distance_m: FloatArray,
-    focal_baseline: float,
-    fx: float,
-    window_px: float,
-    min_size_m: float,
-    visible_columns: npt.NDArray[np.integer],
-) -> npt.NDArray[np.bool_]:
-    """Bins whose nearest cluster is narrower, across the line of sight, than the smallest obstacle.
-
-    Such a cluster is a strip of background beside a silhouette that took its disparity, or
-    a sliver of an object whose body lies in the next bin (which reports it). A cluster's
-    points are those of its bin within its slab (see :func:`nearest_cluster`); their
-    bearings must span ``min_size_m`` at the cluster's distance, less one pixel, or most of
-    the bin where the bin itself is narrower than that (near the camera, or at the edge of
-    the field of view, where ``visible_columns`` of the bin are in the image).
-    """
-    found = np.isfinite(distance_m)
-    if not found.any() or min_size_m <= 0:
-        return np.zeros(SECTOR_COUNT, dtype=np.bool_)
-    near_px = np.where(found, focal_baseline / np.where(found, distance_m, 1.0), 0.0)
-    slab_px = np.maximum(window_px, min_size_m / focal_baseline * near_px * near_px)
-    top = near_px[bins] + window_px
-    member = found[bins] & (disparity_px <= top) & (disparity_px >= top - window_px - slab_px[bins])
-    chosen = np.flatnonzero(member)
-    order = chosen[np.argsort(bins[chosen], kind="stable")]
-    starts = np.searchsorted(bins[order], np.arange(SECTOR_COUNT + 1))
-    span_turns = np.zeros(SECTOR_COUNT)
-    for index in np.flatnonzero(found):
-        members = turns[order[starts[index] : starts[index + 1]]]
-        if members.size:
-            # The middle 90% (scaled back to the whole for evenly spread points): a few stray
-            # points do not widen a strip.
-            low, high = np.percentile(members, (5.0, 95.0))
-            span_turns[index] = (high - low) / 0.9
-    span_m = span_turns * (2.0 * math.pi / SECTOR_COUNT) * np.where(found, distance_m, 0.0)
-    range_m = np.where(found, distance_m, 0.0)
-    needed_m = np.minimum(min_size_m - range_m / fx, 0.3 * visible_columns / fx * range_m)
-    return np.asarray(found & (span_m < needed_m), dtype=np.bool_)
-
-
 def _narrow_cells(
     cells: PointCells,
     near_px: npt.NDArray[np.float64],
@@ -139,10 +95,17 @@ def _narrow_cells(
     visible_columns: npt.NDArray[np.integer],
     workspace: Workspace | None = None,
 ) -> npt.NDArray[np.bool_]:
-    """:func:`_narrow` on cells: the bearings of the points of the cells of each bin's slab.
+    """Bins whose nearest cluster is narrower, across the line of sight, than the smallest obstacle.
 
-    A bin's members are the points of its disparity cells that meet its slab (see
-    :func:`_narrow`). Their 5th and 95th percentile bearings are first read on whole degrees
+    Such a cluster is a strip of background beside a silhouette that took its disparity, or
+    a sliver of an object whose body lies in the next bin (which reports it). A cluster's
+    points are those of its bin within its slab (see :func:`nearest_cluster`): here the points
+    of the bin's disparity cells that meet ``[near - slab, near + window]``. The middle 90% of
+    their bearings (scaled back to the whole, so that a few stray points do not widen a strip)
+    must span ``min_size_m`` at the cluster's distance, less one pixel, or most of the bin
+    where the bin itself is narrower than that (near the camera, or at the edge of the field
+    of view, where ``visible_columns`` of the bin are in the image). The 5th and 95th
+    percentile bearings are first read on whole degrees
     (the rows of ``cells.counts``): that bounds the span within two degrees, which decides
     almost every bin (a bin filled by a surface is far wider than the smallest obstacle). Only
     the bins left undecided count their members' bearings in 64ths of a degree, one pass over

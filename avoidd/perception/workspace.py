@@ -56,8 +56,3 @@ class Workspace:
             kept = np.empty(max(size + size // 8, 1024), dtype=key[1])
             self._arrays[key] = kept
         return kept[:size].reshape(shape)
-
-
-def fresh() -> Workspace:
-    """A workspace of its own (arrays that nobody else will overwrite)."""
-    return Workspace()
