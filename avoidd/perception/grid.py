@@ -121,11 +121,7 @@ def point_cells(
         # below by one product with 1 (kept) or NaN (not).
         np.fmax(forward_m, f32(-1e30), out=forward_m)
         np.fmax(right_m, f32(-1e30), out=right_m)
-        kept_or_nan = np.take(
-            np.array([np.nan, 1.0], dtype=f32),
-            kept.view(np.uint8),
-            out=ws.array("kept_or_nan", count, f32),
-        )
+        kept_or_nan = one_or_nan(kept, ws.array("kept_or_nan", count, f32))
     per_radian = f32(SECTOR_COUNT * FINE_PER_BIN / (2.0 * math.pi))
     turns = np.arctan2(right_m, forward_m, out=ws.array("turns", count, f32))
     turns *= per_radian
@@ -173,6 +169,14 @@ def point_cells(
     key[...] = degree
     counts = np.bincount(key, minlength=rows * cells + 1)[: rows * cells].reshape(rows, cells)
     return PointCells(turns, key, counts, first_degree, first_cell, cell_px, float(focal_baseline))
+
+
+def one_or_nan(mask: BoolArray, out: FloatArray) -> FloatArray:
+    """1.0 where ``mask`` holds, NaN elsewhere, in one pass (x / x of its 0 and 1 bytes)."""
+    byte = mask.view(np.uint8)
+    with np.errstate(invalid="ignore"):
+        np.true_divide(byte, byte, out=out, dtype=np.float32)
+    return out
 
 
 def sector_counts(cells: PointCells) -> tuple[IntArray, IntArray]:

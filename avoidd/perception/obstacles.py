@@ -10,7 +10,14 @@ import numpy as np
 import numpy.typing as npt
 
 from avoidd.config import HistogramConfig, ObstaclesConfig, SectorsConfig
-from avoidd.perception.grid import PointCells, SizeRule, nearest_cells, point_cells, refine
+from avoidd.perception.grid import (
+    PointCells,
+    SizeRule,
+    nearest_cells,
+    one_or_nan,
+    point_cells,
+    refine,
+)
 from avoidd.perception.workspace import Workspace
 from avoidd.types import FloatArray
 
@@ -247,10 +254,9 @@ def _height_extents(
     owner = np.take(table, cells.key, out=ws.array("owner", count, np.int32))
     # 1 where a point belongs to a kept component, NaN elsewhere (no masked copies: slow on
     # a scattered mask).
-    owned = np.take(
-        np.array([np.nan, 1.0], dtype=np.float32),
-        np.greater_equal(owner, 0, out=ws.array("owned", count, np.bool_)).view(np.uint8),
-        out=ws.array("owned_or_nan", count, np.float32),
+    owned = one_or_nan(
+        np.greater_equal(owner, 0, out=ws.array("owned", count, np.bool_)),
+        ws.array("owned_or_nan", count, np.float32),
     )
     heights = np.multiply(above_ground_m, owned, out=ws.array("heights", count, np.float32))
     low = float(np.fmin.reduce(heights, initial=np.inf))
