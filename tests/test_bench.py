@@ -49,9 +49,13 @@ class FakePipeline:
     def __init__(self, head: Any, calibration: Any, max_range_m: float) -> None:
         self.matcher = head.matcher.kind
         self.seqs: list[int] = []
+        self.listed: list[int] = []
         FakePipeline.created.append(self)
 
-    def process(self, frame: StereoFrame) -> Any:
+    def process(self, frame: StereoFrame, with_obstacles: bool = False) -> Any:
+        if with_obstacles:
+            self.listed.append(frame.seq)
+            return types.SimpleNamespace(timing_ms={"obstacles": 7.0})
         self.seqs.append(frame.seq)
         calls = len(self.seqs)
         factor = FACTORS[calls - 2] if calls > 1 else None
@@ -158,23 +162,66 @@ def test_vision_bench_command_writes_what_it_was_asked(
 
     FakePipeline.created = []
     monkeypatch.setattr(vision_bench, "HeadPipeline", FakePipeline)
+    # The worst-case sets, small: rendering them at 640x480 takes seconds.
+    monkeypatch.setattr(vision_bench, "WORST_CASE_SIZE", (160, 120))
     out = tmp_path / "bench.json"
     assert main(["bench", "--matcher", "sad", "--quick", "--frames", "3", "--json", str(out)]) == 0
     written = json.loads(out.read_text())
-    # --quick: 320x240 and 640x480 at 64 disparities, each with one thread and all.
-    assert [(r["matcher"], r["width"], r["disparities"]) for r in written] == [
-        ("sad", 320, 64),
-        ("sad", 320, 64),
-        ("sad", 640, 64),
-        ("sad", 640, 64),
+    # --quick: 320x240 and 640x480 at 64 disparities, then the worst-case sets, each with one
+    # thread and all.
+    assert [(r["matcher"], r["source"], r["width"], r["disparities"]) for r in written] == [
+        ("sad", "synthetic", 320, 64),
+        ("sad", "synthetic", 320, 64),
+        ("sad", "synthetic", 640, 64),
+        ("sad", "synthetic", 640, 64),
+        *[("sad", name, 160, 64) for name in vision_bench.WORST_CASE for _ in range(2)],
     ]
-    assert all(p.seqs == [0, 0, 1, 2] for p in FakePipeline.created)
-    assert len(FakePipeline.created) == 4
+    # Every frame is timed without the obstacle list and then with it (its own column).
+    assert all(p.seqs == [0, 0, 1, 2] and p.listed == [0, 1, 2] for p in FakePipeline.created)
+    assert len(FakePipeline.created) == 12
+    assert all(r["obstacles_list_ms"] == 7.0 for r in written)
+    assert all(r["filled"] is None for r in written[:4])
+    assert all(r["filled"] > 0.7 for r in written[4:])
     # Without --matcher: every matcher, in the bench's order.
     assert main(["bench", "--quick", "--frames", "1", "--json", str(out)]) == 0
     written = json.loads(out.read_text())
     assert [r["matcher"] for r in written[:4]] == ["sgbm", "sad", "census", "segment"]
-    assert len(written) == 16
+    assert len(written) == 48
+
+
+def test_worst_case_frames_are_mostly_obstacle() -> None:
+    # Each worst-case set fills most of the view with obstacles, and most of its pixels become
+    # obstacle points (the wall at 8 m less: the height band cuts the rows above and below).
+    least_candidates = {"wall-1m": 0.6, "wall-3m": 0.5, "wall-8m": 0.2, "poles": 0.4}
+    assert set(least_candidates) == set(vision_bench.WORST_CASE)
+    for name in vision_bench.WORST_CASE:
+        frames = vision_bench.worst_case_frames(name, 320, 240, 1)
+        assert frames.source == name and len(frames.pairs) == 1
+        assert frames.filled is not None and 0.75 <= frames.filled <= 0.95, (name, frames.filled)
+        head = vision_bench._head(vision_bench._matcher("sgbm", 64), frames.mount)
+        result = HeadPipeline(head, frames.calibration, 20.0).process(frames.pairs[0])
+        share = result.obstacle_points / (320 * 240)
+        assert share >= least_candidates[name], (name, share)
+        if name.startswith("wall-"):
+            # The wall is where it says, straight ahead.
+            distance_m = float(name[5:-1])
+            assert result.scan.distance_m[0] == pytest.approx(distance_m, rel=0.05)
+
+
+def test_bench_table_shows_the_worst_case_rows_and_the_list_column() -> None:
+    records = vision_bench.run_bench(
+        ["sgbm"],
+        (),
+        (64,),
+        frames=1,
+        recorded=[vision_bench.worst_case_frames("wall-3m", 160, 120, 1)],
+        with_list=True,
+    )
+    assert [r["source"] for r in records] == ["wall-3m", "wall-3m"]
+    assert all(r["obstacles_list_ms"] > 0 and r["candidates"] > 0.3 for r in records)
+    table = vision_bench.format_bench(records).splitlines()
+    assert "+list" in table[0] and "cand%" in table[0] and "fill%" in table[0]
+    assert all(line.split()[1] == "wall-3m" for line in table[1:])
 
 
 async def test_link_bench_figures_come_from_the_measured_window(

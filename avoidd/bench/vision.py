@@ -7,8 +7,11 @@ stage does real work). In the same run and on the same frames, bare ``StereoSGBM
 that results compare across machines.
 
 A recorded sequence can be timed too (:func:`euroc_frames`): the rendered scene is mostly
-ground and open space, while a camera flying in a room sees walls in most pixels, and the
-obstacle stage's cost grows with the number of obstacle points.
+ground and open space, while a camera flying in a room sees walls in most pixels. The
+worst-case set (:func:`worst_case_frames`) renders such frames on purpose: a wall filling most of
+the view at 1, 3 and 8 m and a dense pole forest, where most pixels are obstacle points. The
+obstacle stage is also timed with the obstacle list (``with_obstacles``, as ``replay`` asks for
+it), in its own column.
 """
 
 from __future__ import annotations
@@ -41,7 +44,15 @@ from avoidd.mavlink.codec import Codec
 from avoidd.mavlink.messages import sectors_to_cm
 from avoidd.pipeline import HeadPipeline
 from avoidd.progress import Progress
-from avoidd.sources.scene import render_pair, to_uint8
+from avoidd.sources.scene import (
+    FIRST_OBSTACLE_ID,
+    Box,
+    Pole,
+    RenderedPair,
+    Scene,
+    render_pair,
+    to_uint8,
+)
 from avoidd.sources.synthetic import scene_at
 from avoidd.types import RectifiedRig, StereoFrame
 from avoidd.vision.calibration import Calibration, RectifyMaps, rectify_stereo
@@ -53,6 +64,9 @@ DISPARITIES = (64, 128)
 MATCHERS = ("sgbm", "sad", "census", "segment")
 """Every matcher the bench knows, in the order it reports them."""
 STAGES = ("rectify", "preprocess", "match", "post", "depth", "obstacles", "encode")
+WORST_CASE = ("wall-1m", "wall-3m", "wall-8m", "poles")
+"""The worst-case frame sets, by name (see :func:`worst_case_frames`)."""
+WORST_CASE_SIZE = (640, 480)
 
 
 def _matcher(name: str, num_disparities: int) -> MatcherConfig:
@@ -87,7 +101,11 @@ def _maps(rig: RectifiedRig) -> RectifyMaps:
 
 def _frames(rig: RectifiedRig, count: int) -> list[StereoFrame]:
     scene = scene_at(SyntheticSourceConfig(kind="synthetic", seed=1), 0.0)
-    rendered = render_pair(scene, rig)
+    return _noisy(render_pair(scene, rig), count)
+
+
+def _noisy(rendered: RenderedPair, count: int) -> list[StereoFrame]:
+    """``count`` frames of one rendered pair, each with fresh sensor noise."""
     rng = np.random.default_rng(0)
     frames = []
     for seq in range(count):
@@ -107,17 +125,90 @@ class FrameSet(NamedTuple):
         source: Name shown in the report (``synthetic`` or the sequence's).
         calibration: Their calibration (with remap tables: rectify does real work).
         pairs: The raw stereo pairs.
+        mount: The mount the frames were rendered with (the pipeline is given it).
+        filled: Share of the view the obstacles fill (rendered worst-case sets; else None).
     """
 
     source: str
     calibration: Calibration
     pairs: list[StereoFrame]
+    mount: MountConfig = MountConfig()
+    filled: float | None = None
 
 
 def synthetic_frames(width: int, height: int, count: int) -> FrameSet:
     """The rendered scene at one resolution, with fresh sensor noise on every frame."""
     rig = _rig(width, height)
     return FrameSet("synthetic", Calibration(rig, _maps(rig), Path("bench")), _frames(rig, count))
+
+
+def worst_case_scene(name: str, rig: RectifiedRig) -> tuple[Scene, float]:
+    """A worst-case scene for the obstacle stage and the mount pitch it is seen with.
+
+    ``wall-<D>m``: a wall at D metres, wide enough to fill about 80% of the view (at 8 m the
+    camera is pitched up 15 degrees, so the ground in front of the wall stays small).
+    ``poles``: a dense forest of poles from 1.5 to 12 m.
+
+    Args:
+        name: One of :data:`WORST_CASE`.
+        rig: The rig it is rendered for.
+
+    Returns:
+        The scene and its camera pitch in degrees (positive up).
+
+    Raises:
+        ValueError: An unknown name.
+    """
+    half_width = (rig.width / 2) / rig.fx  # tangent of half the horizontal field of view
+    height_m = SyntheticSourceConfig.model_fields["camera_height_m"].default
+    if name.startswith("wall-") and name.endswith("m"):
+        distance_m = float(name[5:-1])
+        pitch_deg = 15.0 if distance_m > 5.0 else 0.0
+        depth_m = 0.3
+        wall = Box(distance_m + depth_m / 2, 0.0, depth_m, 1.8 * distance_m * half_width, 14.0)
+        return Scene(height_m, pitch_deg, (wall,), 45.0, 5), pitch_deg
+    if name == "poles":
+        rng = np.random.default_rng(11)
+        poles: list[Box | Pole] = []
+        for forward_m in np.arange(1.5, 12.0, 0.7):
+            spread_m = forward_m * half_width + 1.0
+            for right_m in np.arange(-spread_m, spread_m, 0.9):
+                poles.append(
+                    Pole(
+                        float(forward_m + rng.uniform(-0.25, 0.25)),
+                        float(right_m + rng.uniform(-0.3, 0.3)),
+                        float(rng.uniform(0.1, 0.35)),
+                        float(rng.uniform(3.0, 6.0)),
+                    )
+                )
+        return Scene(height_m, 0.0, tuple(poles), 45.0, 6), 0.0
+    raise ValueError(f"unknown worst-case frame set {name!r}; known: {', '.join(WORST_CASE)}")
+
+
+def worst_case_frames(name: str, width: int, height: int, count: int) -> FrameSet:
+    """One worst-case frame set (see :func:`worst_case_scene`).
+
+    Args:
+        name: One of :data:`WORST_CASE`.
+        width: Image width.
+        height: Image height.
+        count: Frames (each with fresh sensor noise).
+
+    Returns:
+        The frames, named after the set, with the share of the view the obstacles fill (exact,
+        from the renderer's ground truth).
+    """
+    rig = _rig(width, height)
+    scene, pitch_deg = worst_case_scene(name, rig)
+    rendered = render_pair(scene, rig)
+    ids = rendered.truth.object_id
+    return FrameSet(
+        name,
+        Calibration(rig, _maps(rig), Path("bench")),
+        _noisy(rendered, count),
+        MountConfig(pitch_deg=pitch_deg),
+        float(np.count_nonzero(ids >= FIRST_OBSTACLE_ID)) / ids.size,
+    )
 
 
 def euroc_frames(folder: Path, count: int) -> FrameSet:
@@ -157,12 +248,12 @@ def euroc_frames(folder: Path, count: int) -> FrameSet:
     return FrameSet(mav0.parent.name or "euroc", Calibration(rig, maps, mav0, rotation), pairs)
 
 
-def _head(matcher: MatcherConfig) -> HeadConfig:
+def _head(matcher: MatcherConfig, mount: MountConfig | None = None) -> HeadConfig:
     # Built without validation: the calibration comes as an object, not a file.
     return HeadConfig.model_construct(
         name="bench",
         calibration=Path("bench"),
-        mount=MountConfig(),
+        mount=mount or MountConfig(),
         source=SyntheticSourceConfig(kind="synthetic"),
         matcher=matcher,
         postprocess=PostprocessConfig(),
@@ -177,6 +268,7 @@ def run_bench(
     disparities: tuple[int, ...] = DISPARITIES,
     frames: int = 5,
     recorded: Sequence[FrameSet] = (),
+    with_list: bool = False,
 ) -> list[dict[str, Any]]:
     """Time every stage for each matcher, frame set, disparity range and thread setting.
 
@@ -185,13 +277,18 @@ def run_bench(
         resolutions: Sizes of the rendered frame sets.
         disparities: Disparity ranges.
         frames: Rendered frames per size.
-        recorded: Recorded frame sets (see :func:`euroc_frames`), timed after the rendered ones.
+        recorded: More frame sets (the worst-case ones of :func:`worst_case_frames`, recorded
+            ones of :func:`euroc_frames`), timed after the rendered ones.
+        with_list: Also time the obstacle stage with the obstacle list, in a second pass over
+            the same frames.
 
     Returns:
         One record per configuration: ``matcher``, ``source``, ``width``, ``height``,
         ``disparities``, ``threads``, ``stages_ms`` (medians), ``total_ms``,
-        ``opencv_sgbm_ms`` and the ratios ``match_vs_opencv``, ``total_vs_opencv`` and
-        ``non_match_vs_match``.
+        ``opencv_sgbm_ms``, the ratios ``match_vs_opencv``, ``total_vs_opencv`` and
+        ``non_match_vs_match``, ``candidates`` (median share of the pixels that are obstacle
+        points), ``filled`` (the frame set's, or None) and, with ``with_list``,
+        ``obstacles_list_ms`` (median obstacle stage with the list; else None).
     """
     all_threads = cv2.getNumberOfCPUs()
     codec = Codec(1, 196)
@@ -211,9 +308,12 @@ def run_bench(
                     )
                     for name in matchers:
                         pipeline = HeadPipeline(
-                            _head(_matcher(name, num_disparities)), frame_set.calibration, 20.0
+                            _head(_matcher(name, num_disparities), frame_set.mount),
+                            frame_set.calibration,
+                            20.0,
                         )
-                        stages = _time_pipeline(pipeline, frame_set.pairs, codec)
+                        stages, candidates = _time_pipeline(pipeline, frame_set.pairs, codec)
+                        list_ms = _time_list(pipeline, frame_set.pairs) if with_list else None
                         total = sum(stages.values())
                         records.append(
                             {
@@ -231,6 +331,9 @@ def run_bench(
                                 "non_match_vs_match": round(
                                     (total - stages["match"]) / stages["match"], 3
                                 ),
+                                "candidates": round(candidates, 3),
+                                "filled": frame_set.filled,
+                                "obstacles_list_ms": None if list_ms is None else round(list_ms, 3),
                             }
                         )
                         progress.step(
@@ -272,34 +375,60 @@ def _opencv_sgbm_ms(
 
 def _time_pipeline(
     pipeline: HeadPipeline, pairs: list[StereoFrame], codec: Codec
-) -> dict[str, float]:
+) -> tuple[dict[str, float], float]:
+    """Median milliseconds per stage, and the median share of pixels kept as obstacle points."""
     pipeline.process(pairs[0])  # warm-up
     per_stage: dict[str, list[float]] = {stage: [] for stage in STAGES}
+    candidates = []
     for frame in pairs:
         result = pipeline.process(frame)
+        candidates.append(
+            getattr(result, "obstacle_points", 0)
+            / max(frame.left.shape[0] * frame.left.shape[1], 1)
+        )
         started = time.perf_counter()
         codec.pack(codec.obstacle_distance(0, sectors_to_cm(result.scan, 20, 2000), 20, 2000))
         encode_ms = (time.perf_counter() - started) * 1000.0
         timing = {**result.timing_ms, "encode": encode_ms}
         for stage in STAGES:
             per_stage[stage].append(timing[stage])
-    return {stage: statistics.median(values) for stage, values in per_stage.items()}
+    medians = {stage: statistics.median(values) for stage, values in per_stage.items()}
+    return medians, statistics.median(candidates)
+
+
+def _time_list(pipeline: HeadPipeline, pairs: list[StereoFrame]) -> float:
+    """Median milliseconds of the obstacle stage when it also lists the obstacles."""
+    return statistics.median(
+        pipeline.process(frame, with_obstacles=True).timing_ms["obstacles"] for frame in pairs
+    )
 
 
 def format_bench(records: list[dict[str, Any]]) -> str:
-    """One row per configuration."""
+    """One row per configuration.
+
+    ``+list`` is the obstacle stage with the obstacle list (``-`` when not timed), ``cand%``
+    the share of the pixels that are obstacle points, ``fill%`` the share of the view that
+    the obstacles fill (rendered worst-case sets only).
+    """
     head = (
         f"{'matcher':<8} {'frames':<16} {'size':>9} {'disp':>4} {'thr':>3} "
         + " ".join(f"{s[:7]:>7}" for s in STAGES)
-        + f" {'total':>7} {'opencv':>7} {'match/cv':>8} {'rest/match':>10}"
+        + f" {'+list':>7} {'total':>7} {'opencv':>7} {'match/cv':>8} {'rest/match':>10}"
+        + f" {'cand%':>5} {'fill%':>5}"
     )
     lines = [head]
     for r in records:
         stages = " ".join(f"{r['stages_ms'][s]:7.2f}" for s in STAGES)
+        listed = r.get("obstacles_list_ms")
+        filled = r.get("filled")
         lines.append(
             f"{r['matcher']:<8} {r['source'][:16]:<16} {r['width']:>4}x{r['height']:<4} "
             f"{r['disparities']:>4} "
-            f"{r['threads']:>3} {stages} {r['total_ms']:7.2f} {r['opencv_sgbm_ms']:7.2f} "
+            f"{r['threads']:>3} {stages} "
+            + (f"{listed:7.2f}" if listed is not None else f"{'-':>7}")
+            + f" {r['total_ms']:7.2f} {r['opencv_sgbm_ms']:7.2f} "
             f"{r['match_vs_opencv']:8.2f} {r['non_match_vs_match']:10.2f}"
+            f" {100 * r.get('candidates', 0.0):5.1f}"
+            + (f" {100 * filled:5.1f}" if filled is not None else f" {'-':>5}")
         )
     return "\n".join(lines)

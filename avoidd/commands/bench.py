@@ -22,7 +22,9 @@ def configure(name: str, parser: argparse.ArgumentParser) -> None:
         )
         parser.add_argument("--frames", type=int, default=5, help="frames per configuration")
         parser.add_argument(
-            "--quick", action="store_true", help="320x240 and 640x480, 64 disparities"
+            "--quick",
+            action="store_true",
+            help="320x240 and 640x480, 64 disparities (the worst-case frames at 640x480 always)",
         )
         parser.add_argument("--json", type=Path, help="also write the figures as JSON")
         parser.add_argument(
@@ -94,16 +96,27 @@ def run_vision_bench(args: argparse.Namespace) -> int:
         DISPARITIES,
         MATCHERS,
         RESOLUTIONS,
+        WORST_CASE,
+        WORST_CASE_SIZE,
         euroc_frames,
         format_bench,
         run_bench,
+        worst_case_frames,
     )
 
     resolutions = RESOLUTIONS[:2] if args.quick else RESOLUTIONS
     disparities = DISPARITIES[:1] if args.quick else DISPARITIES
-    recorded = [euroc_frames(args.euroc, args.frames)] if args.euroc is not None else []
+    # The worst-case frames (most pixels obstacle points) at 640x480, after the rendered ones.
+    recorded = [worst_case_frames(name, *WORST_CASE_SIZE, args.frames) for name in WORST_CASE]
+    if args.euroc is not None:
+        recorded.append(euroc_frames(args.euroc, args.frames))
     records = run_bench(
-        args.matcher or list(MATCHERS), resolutions, disparities, args.frames, recorded
+        args.matcher or list(MATCHERS),
+        resolutions,
+        disparities,
+        args.frames,
+        recorded,
+        with_list=True,
     )
     print(format_bench(records))
     if args.json is not None:

@@ -141,7 +141,13 @@ def depth_to_frame(depth_m: FloatArray, rig: RectifiedRig, pose: Pose) -> Compon
     return Components(out[0], out[1], out[2])
 
 
-def axis_per_depth(rig: RectifiedRig, shape: tuple[int, ...], pose: Pose, axis: int) -> FloatArray:
+def axis_per_depth(
+    rig: RectifiedRig,
+    shape: tuple[int, ...],
+    pose: Pose,
+    axis: int,
+    out: FloatArray | None = None,
+) -> FloatArray:
     """How much one output coordinate grows per metre of optical depth, at every pixel.
 
     Coordinate ``axis`` of a pixel's point is ``Z * map[v, u] + pose.translation[axis]``.
@@ -151,10 +157,14 @@ def axis_per_depth(rig: RectifiedRig, shape: tuple[int, ...], pose: Pose, axis: 
         shape: (H, W) of the depth map.
         pose: Camera-to-frame pose.
         axis: 0 forward, 1 right, 2 down.
+        out: (H, W) float32 array to write the map into (a new one when None).
 
     Returns:
         (H, W) float32.
     """
     xn, yn = _normalised(rig, shape[0], shape[1])
     a, b, c = (np.float32(value) for value in pose.rotation[axis])
-    return np.asarray((a * xn)[None, :] + (b * yn + c)[:, None], dtype=np.float32)
+    if out is None:
+        out = np.empty((shape[0], shape[1]), dtype=np.float32)
+    np.add((a * xn)[None, :], (b * yn + c)[:, None], out=out)
+    return out

@@ -10,6 +10,7 @@ import numpy.typing as npt
 
 from avoidd.config import BandConfig, GroundConfig
 from avoidd.perception.frames import Components, Pose, axis_per_depth
+from avoidd.perception.workspace import Workspace
 from avoidd.types import BoolArray, FloatArray, RectifiedRig
 
 Vector = npt.NDArray[np.float64]
@@ -23,11 +24,14 @@ class ObstaclePoints(NamedTuple):
         level: Their level-frame coordinates, (N,) each, in row-major pixel order.
         free_per_column: (W,) pixels per column that show free space (see
             :func:`free_space_evidence`).
+        horizontal2_m2: With ``whole_image``: (H * W,) squared horizontal range of every
+            pixel's point (None otherwise).
     """
 
     mask: BoolArray
     level: Components
     free_per_column: npt.NDArray[np.int64]
+    horizontal2_m2: FloatArray | None = None
 
 
 def obstacle_points(
@@ -38,6 +42,8 @@ def obstacle_points(
     ground: GroundConfig,
     band: BandConfig,
     max_range_m: float,
+    workspace: Workspace | None = None,
+    whole_image: bool = False,
 ) -> ObstaclePoints:
     """Pixels whose point may belong to an obstacle, with their level-frame points.
 
@@ -64,40 +70,78 @@ def obstacle_points(
         ground: Ground model parameters.
         band: Height band parameters.
         max_range_m: Points at or beyond this horizontal range are left out (they are clear).
+        workspace: Where the temporaries and the points live (see
+            :mod:`avoidd.perception.workspace`: the points are overwritten by its next frame);
+            arrays of their own when None. The mask is always a new array.
+        whole_image: Give the points of every pixel (``level`` and ``horizontal2_m2`` are
+            (H * W,), the mask says which are kept) instead of gathering the kept ones: the
+            sector scan and the obstacle list then cost the same whatever share of the image
+            is obstacle, and no gather is paid when most of it is.
 
     Returns:
         The kept pixels and their points.
     """
+    ws = workspace or Workspace()
+    shape = depth_m.shape
+    f32 = np.float32
     camera_down = float(to_level.translation[2])
+    forward_map = axis_per_depth(rig, shape, to_level, 0, ws.array("forward_map", shape, f32))
+    right_map = axis_per_depth(rig, shape, to_level, 1, ws.array("right_map", shape, f32))
+    down_map = axis_per_depth(rig, shape, to_level, 2, ws.array("down_map", shape, f32))
+    # Every step writes into a kept array: a fresh whole-image array costs more to map than
+    # the arithmetic in it.
+    scratch = ws.array("scratch", shape, f32)
+    test = ws.array("test", shape, np.bool_)
     # Down coordinate relative to the camera: how far the point lies below the camera (NaN
     # for a far reading on a level ray: inf times 0; it is not kept either way).
     with np.errstate(invalid="ignore"):
-        rise = depth_m * axis_per_depth(rig, depth_m.shape, to_level, 2)
+        rise = np.multiply(depth_m, down_map, out=ws.array("rise", shape, f32))
     # Moved back along its ray to disparity d - tol, a point's offset from the camera scales
     # by 1 / s with s = 1 - tol * Z / fB; its ground test rise / s <= K (K: clearance of the
     # camera over the ground less the margin) is, for s > 0, rise + K * tol / fB * Z <= K.
     clearance = height_m - ground.margin_m - camera_down
     per_depth = ground.disparity_tolerance_px / (rig.fx * rig.baseline_m)
     with np.errstate(invalid="ignore"):
-        keep = rise >= np.float32(-band.above_m - camera_down)
-        keep &= rise <= np.float32(band.below_m - camera_down)
+        keep = np.greater_equal(rise, f32(-band.above_m - camera_down))  # returned: a new one
+        keep &= np.less_equal(rise, f32(band.below_m - camera_down), out=test)
         if per_depth > 0:
-            farthest = min(1.0 / per_depth, float(np.finfo(np.float32).max))
-            keep &= depth_m < np.float32(farthest)
-            keep &= rise + np.float32(clearance * per_depth) * depth_m <= np.float32(clearance)
+            farthest = min(1.0 / per_depth, float(np.finfo(f32).max))
+            keep &= np.less(depth_m, f32(farthest), out=test)
+            np.multiply(depth_m, f32(clearance * per_depth), out=scratch)
+            scratch += rise
+            keep &= np.less_equal(scratch, f32(clearance), out=test)
         else:
-            keep &= rise <= np.float32(clearance)
-        forward = depth_m * axis_per_depth(rig, depth_m.shape, to_level, 0)
-        forward += np.float32(to_level.translation[0])
-        right = depth_m * axis_per_depth(rig, depth_m.shape, to_level, 1)
-        right += np.float32(to_level.translation[1])
-        keep &= forward * forward + right * right < np.float32(max_range_m * max_range_m)
-    rise += np.float32(camera_down)  # now the down coordinate
-    free = free_space_evidence(depth_m, rig, to_level, band, max_range_m)
+            keep &= np.less_equal(rise, f32(clearance), out=test)
+        forward = np.multiply(depth_m, forward_map, out=ws.array("forward", shape, f32))
+        forward += f32(to_level.translation[0])
+        right = np.multiply(depth_m, right_map, out=ws.array("right", shape, f32))
+        right += f32(to_level.translation[1])
+        np.multiply(forward, forward, out=scratch)
+        # The right map is not needed after this frame's free-space test: reuse it last.
+        keep &= np.less(
+            np.add(scratch, np.square(right, out=ws.array("right2", shape, f32)), out=scratch),
+            f32(max_range_m * max_range_m),
+            out=test,
+        )
+    rise += f32(camera_down)  # now the down coordinate
+    free = _free_space(
+        depth_m, forward_map, right_map, down_map, camera_down, band, max_range_m, ws
+    )
+    free_per_column = np.count_nonzero(free, axis=0).astype(np.int64)
+    if whole_image:
+        level = Components(forward.ravel(), right.ravel(), rise.ravel())
+        return ObstaclePoints(keep, level, free_per_column, scratch.ravel())
+    # Gathering by index is several times faster than a boolean mask on a scattered one.
+    kept = np.flatnonzero(keep)
+    count = kept.size
     return ObstaclePoints(
         keep,
-        Components(forward[keep], right[keep], rise[keep]),
-        np.count_nonzero(free, axis=0).astype(np.int64),
+        Components(
+            np.take(forward.ravel(), kept, out=ws.array("kept_forward", count, f32)),
+            np.take(right.ravel(), kept, out=ws.array("kept_right", count, f32)),
+            np.take(rise.ravel(), kept, out=ws.array("kept_down", count, f32)),
+        ),
+        free_per_column,
     )
 
 
@@ -123,20 +167,53 @@ def free_space_evidence(
     Returns:
         (H, W) boolean mask.
     """
-    forward = axis_per_depth(rig, depth_m.shape, to_level, 0)
-    right = axis_per_depth(rig, depth_m.shape, to_level, 1)
-    down = axis_per_depth(rig, depth_m.shape, to_level, 2)
-    horizontal = np.sqrt(forward * forward + right * right)
-    camera_down = np.float32(to_level.translation[2])
+    return _free_space(
+        depth_m,
+        axis_per_depth(rig, depth_m.shape, to_level, 0),
+        axis_per_depth(rig, depth_m.shape, to_level, 1),
+        axis_per_depth(rig, depth_m.shape, to_level, 2),
+        float(to_level.translation[2]),
+        band,
+        max_range_m,
+    ).copy()
+
+
+def _free_space(
+    depth_m: FloatArray,
+    forward_map: FloatArray,
+    right_map: FloatArray,
+    down_map: FloatArray,
+    camera_down_m: float,
+    band: BandConfig,
+    max_range_m: float,
+    workspace: Workspace | None = None,
+) -> BoolArray:
+    """:func:`free_space_evidence` from the pixel maps of :func:`axis_per_depth`.
+
+    The result is an array of ``workspace`` (overwritten by its next frame).
+    """
+    ws = workspace or Workspace()
+    shape = depth_m.shape
+    f32 = np.float32
+    horizontal = np.multiply(forward_map, forward_map, out=ws.array("horizontal", shape, f32))
+    horizontal += np.square(right_map, out=ws.array("right2", shape, f32))
+    np.sqrt(horizontal, out=horizontal)
+    scratch = ws.array("free_scratch", shape, f32)
+    test = ws.array("free_test", shape, np.bool_)
     with np.errstate(invalid="ignore", divide="ignore"):
-        beyond = depth_m * horizontal >= np.float32(max_range_m)
+        beyond: BoolArray = np.greater_equal(
+            np.multiply(depth_m, horizontal, out=scratch),
+            f32(max_range_m),
+            out=ws.array("free", shape, np.bool_),
+        )
         # Height of the ray where it reaches the maximum range (the camera's own offset from
         # the body origin is small next to that range and is taken at the camera).
-        down_there = down / horizontal * np.float32(max_range_m) + camera_down
-        inside = (down_there >= np.float32(-band.above_m)) & (
-            down_there <= np.float32(band.below_m)
-        )
-    return np.asarray(beyond & inside, dtype=np.bool_)
+        down_there = np.divide(down_map, horizontal, out=scratch)
+        down_there *= f32(max_range_m)
+        down_there += f32(camera_down_m)
+        beyond &= np.greater_equal(down_there, f32(-band.above_m), out=test)
+        beyond &= np.less_equal(down_there, f32(band.below_m), out=test)
+    return beyond
 
 
 def height_from_rangefinder(distance_m: float, roll_deg: float, pitch_deg: float) -> float:

@@ -11,10 +11,15 @@ import numpy.typing as npt
 from avoidd.config import HistogramConfig, PerceptionConfig, SectorsConfig
 from avoidd.errors import BrokenFrame
 from avoidd.perception.frames import Matrix, Pose, body_to_level, camera_to_level
+from avoidd.perception.grid import point_cells
 from avoidd.perception.ground import obstacle_points
 from avoidd.perception.obstacles import Obstacle, cluster_obstacles
 from avoidd.perception.sectors import Candidates, sector_scan
+from avoidd.perception.workspace import Workspace
 from avoidd.types import BoolArray, FloatArray, FramePose, Mount, RectifiedRig, SectorScan
+
+_GATHER_BELOW = 0.4
+"""Below this share of kept pixels the points are gathered before binning (cheaper then)."""
 
 
 class Perception(NamedTuple):
@@ -86,12 +91,48 @@ def perceive(
     if rectified_from_raw is not None:
         # Rectified points turn back into the physical camera's frame first.
         to_level = Pose(to_level.rotation @ rectified_from_raw.T, to_level.translation)
+    # The thread's workspace keeps the temporaries (and the points) from frame to frame.
+    workspace = Workspace.for_thread()
+    # Every pixel comes back as a point (the mask says which are kept). When most are kept
+    # (a wall filling the view), they are binned in place: no gather, and the cost is that of
+    # the whole image whatever share of it is obstacle. When few are, gathering them first
+    # is cheaper.
     points = obstacle_points(
-        depth_m, rig, to_level, pose.height_m, config.ground, config.band, max_range_m
+        depth_m,
+        rig,
+        to_level,
+        pose.height_m,
+        config.ground,
+        config.band,
+        max_range_m,
+        workspace,
+        whole_image=True,
     )
     forward, right, down = points.level
+    mask = points.mask.ravel()
+    candidates = int(np.count_nonzero(mask))
+    kept: npt.NDArray[np.bool_] | None = mask
+    horizontal2 = points.horizontal2_m2
+    if candidates < _GATHER_BELOW * mask.size:
+        index = np.flatnonzero(mask)
+        f32 = np.float32
+        forward = np.take(forward, index, out=workspace.array("kept_forward", candidates, f32))
+        right = np.take(right, index, out=workspace.array("kept_right", candidates, f32))
+        down = np.take(down, index, out=workspace.array("kept_down", candidates, f32))
+        kept = horizontal2 = None
+    # The points are binned once, for the scan and the obstacle list.
+    cells = point_cells(
+        forward,
+        right,
+        rig.fx * rig.baseline_m,
+        sectors.cluster_window_px,
+        workspace,
+        kept,
+        horizontal2,
+    )
     level_from_body = body_to_level(pose.roll_deg, pose.pitch_deg).rotation
-    valid_per_column = np.count_nonzero(~np.isnan(depth_m), axis=0)  # inf: measured far
+    unmeasured = np.isnan(depth_m, out=workspace.array("unmeasured", depth_m.shape, np.bool_))
+    valid_per_column = depth_m.shape[0] - np.count_nonzero(unmeasured, axis=0)  # inf: far
     scan = sector_scan(
         Candidates(forward, right, down, level_from_body),
         valid_per_column,
@@ -104,17 +145,24 @@ def perceive(
         mount,
         sectors,
         t_capture_ns,
+        cells,
+        workspace,
     )
     obstacles: list[Obstacle] = []
     if with_obstacles:
+        above_ground = np.subtract(
+            np.float32(pose.height_m), down, out=workspace.array("above", down.size, np.float32)
+        )
         obstacles = cluster_obstacles(
             forward,
             right,
-            np.float32(pose.height_m) - down,
+            above_ground,
             rig.fx * rig.baseline_m,
             rig.baseline_m,
             config.obstacles,
             sectors,
             histogram,
+            cells,
+            workspace,
         )
-    return Perception(scan, obstacles, int(forward.size), pose, points.mask)
+    return Perception(scan, obstacles, candidates, pose, points.mask)

@@ -10,6 +10,18 @@ import numpy as np
 import numpy.typing as npt
 
 from avoidd.config import SectorsConfig
+from avoidd.perception.grid import (
+    FINE_PER_BIN,
+    NearestCells,
+    PointCells,
+    SizeRule,
+    nearest_cells,
+    point_cells,
+    refine,
+    row_targets,
+    sector_counts,
+)
+from avoidd.perception.workspace import Workspace
 from avoidd.types import (
     SECTOR_COUNT,
     SECTOR_WIDTH_DEG,
@@ -73,48 +85,212 @@ def _bins_of_points(forward_m: FloatArray, right_m: FloatArray) -> tuple[IntArra
     return np.remainder(turns.astype(np.int64), SECTOR_COUNT), turns
 
 
-def _narrow(
-    bins: IntArray,
-    turns: FloatArray,
-    disparity_px: FloatArray,
+def _narrow_cells(
+    cells: PointCells,
+    near_px: npt.NDArray[np.float64],
     distance_m: FloatArray,
-    focal_baseline: float,
     fx: float,
     window_px: float,
     min_size_m: float,
     visible_columns: npt.NDArray[np.integer],
+    workspace: Workspace | None = None,
 ) -> npt.NDArray[np.bool_]:
     """Bins whose nearest cluster is narrower, across the line of sight, than the smallest obstacle.
 
     Such a cluster is a strip of background beside a silhouette that took its disparity, or
     a sliver of an object whose body lies in the next bin (which reports it). A cluster's
-    points are those of its bin within its slab (see :func:`nearest_cluster`); their
-    bearings must span ``min_size_m`` at the cluster's distance, less one pixel, or most of
-    the bin where the bin itself is narrower than that (near the camera, or at the edge of
-    the field of view, where ``visible_columns`` of the bin are in the image).
+    points are those of its bin within its slab (see :func:`nearest_cluster`): here the points
+    of the bin's disparity cells that meet ``[near - slab, near + window]``. The middle 90% of
+    their bearings (scaled back to the whole, so that a few stray points do not widen a strip)
+    must span ``min_size_m`` at the cluster's distance, less one pixel, or most of the bin
+    where the bin itself is narrower than that (near the camera, or at the edge of the field
+    of view, where ``visible_columns`` of the bin are in the image). The 5th and 95th
+    percentile bearings are first read on whole degrees
+    (the rows of ``cells.counts``): that bounds the span within two degrees, which decides
+    almost every bin (a bin filled by a surface is far wider than the smallest obstacle). Only
+    the bins left undecided count their members' bearings in 64ths of a degree, one pass over
+    the points. Percentiles are read at the outer edges of their cells, so a span is never
+    underestimated (a reading is not dropped as narrow when its points are not).
     """
     found = np.isfinite(distance_m)
     if not found.any() or min_size_m <= 0:
         return np.zeros(SECTOR_COUNT, dtype=np.bool_)
-    near_px = np.where(found, focal_baseline / np.where(found, distance_m, 1.0), 0.0)
-    slab_px = np.maximum(window_px, min_size_m / focal_baseline * near_px * near_px)
-    top = near_px[bins] + window_px
-    member = found[bins] & (disparity_px <= top) & (disparity_px >= top - window_px - slab_px[bins])
-    chosen = np.flatnonzero(member)
-    order = chosen[np.argsort(bins[chosen], kind="stable")]
-    starts = np.searchsorted(bins[order], np.arange(SECTOR_COUNT + 1))
-    span_turns = np.zeros(SECTOR_COUNT)
-    for index in np.flatnonzero(found):
-        members = turns[order[starts[index] : starts[index + 1]]]
-        if members.size:
-            # The middle 90% (scaled back to the whole for evenly spread points): a few stray
-            # points do not widen a strip.
-            low, high = np.percentile(members, (5.0, 95.0))
-            span_turns[index] = (high - low) / 0.9
-    span_m = span_turns * (2.0 * math.pi / SECTOR_COUNT) * np.where(found, distance_m, 0.0)
+    focal_baseline = cells.focal_baseline
+    near = np.where(found, near_px, 0.0)
+    slab_px = np.maximum(window_px, min_size_m / focal_baseline * near * near)
+    low_px, high_px = cells.edges_px()
+    degree_bin = _degree_bins(cells)
+    bottom = (near - slab_px - cells.cell_px)[degree_bin]
+    top = (near + window_px + cells.cell_px)[degree_bin]
+    member = (high_px[None, :] > bottom[:, None]) & (low_px[None, :] <= top[:, None])
+    member &= found[degree_bin][:, None]
+    per_degree = np.where(member, cells.counts, 0).sum(axis=1)
     range_m = np.where(found, distance_m, 0.0)
     needed_m = np.minimum(min_size_m - range_m / fx, 0.3 * visible_columns / fx * range_m)
-    return np.asarray(found & (span_m < needed_m), dtype=np.bool_)
+    metres_per_turn = (2.0 * math.pi / SECTOR_COUNT) * range_m
+    # Whole degrees: the span lies within (high - low - 1, high - low + 1) degrees.
+    per_bin_degree = np.zeros((SECTOR_COUNT, 5), dtype=np.int64)
+    np.add.at(
+        per_bin_degree,
+        (degree_bin, (np.arange(degree_bin.size) + cells.first_degree) % 5),
+        per_degree,
+    )
+    low, high = _percentile_cells(per_bin_degree)
+    least_m = np.maximum(high - low - 1, 0) / 5 / 0.9 * metres_per_turn
+    most_m = (high - low + 1) / 5 / 0.9 * metres_per_turn
+    narrow: npt.NDArray[np.bool_] = np.asarray(found & (most_m < needed_m), dtype=np.bool_)
+    undecided = found & ~narrow & (least_m < needed_m)
+    if not undecided.any():
+        return narrow
+    # The undecided bins, in 64ths of a degree.
+    member &= undecided[degree_bin][:, None]
+    count = cells.key.size
+    ws = workspace or Workspace()
+    chosen = np.take(cells.table(member, False), cells.key, out=ws.array("member", count, np.bool_))
+    fine = cells.turns[np.flatnonzero(chosen)].astype(np.int64)
+    per_fine = np.bincount(fine, minlength=(SECTOR_COUNT + 1) * FINE_PER_BIN)
+    per_fine = per_fine[: (SECTOR_COUNT + 1) * FINE_PER_BIN].reshape(SECTOR_COUNT + 1, -1)
+    per_fine[0] += per_fine[SECTOR_COUNT]  # both hold bin 36 (+-180 degrees)
+    per_fine = np.roll(per_fine[:SECTOR_COUNT], 36, axis=0)  # row i: bin i
+    low, high = _percentile_cells(per_fine)
+    span_m = (high - low) / FINE_PER_BIN / 0.9 * metres_per_turn
+    narrow[undecided] = span_m[undecided] < needed_m[undecided]
+    return narrow
+
+
+def _percentile_cells(counts: IntArray) -> tuple[IntArray, IntArray]:
+    """Per row, the lower edge of the cell of the 5th percentile and the upper of the 95th.
+
+    ``np.percentile`` interpolates between the values at ranks ``floor`` and ``ceil`` of
+    ``q (n - 1)``: those lie within the cells returned. Rows without points give (0, 0).
+    """
+    running = np.cumsum(counts, axis=1)
+    total = running[:, -1]
+    low_rank = np.floor(0.05 * (total - 1)).astype(np.int64)
+    high_rank = np.ceil(0.95 * (total - 1)).astype(np.int64)
+    low = np.count_nonzero(running <= low_rank[:, None], axis=1)
+    high = np.count_nonzero(running <= high_rank[:, None], axis=1) + 1
+    empty = total == 0
+    return np.where(empty, 0, low), np.where(empty, 0, high)
+
+
+_SEARCH_MAX_POINTS = 8192
+"""At most this many points are searched one by one in a frame (the bins with the fewest)."""
+
+
+def _worth_searching(
+    cells: PointCells, found_rows: NearestCells, counts: IntArray, rule: SizeRule
+) -> npt.NDArray[np.bool_]:
+    """Rows whose reading the points decide (see :func:`_search_points`).
+
+    Every bin with a reading whose points near its seed fit, fewest first, within
+    ``_SEARCH_MAX_POINTS`` a frame, those whose seed the counts leave open first (no cell is
+    surely dense, or the seed may lie in more than two cells). A row left out keeps its
+    reading from the counts: never farther, nearer by about a cell at most when one surface
+    fills the window. A surface filling the view leaves its bins to the counts, so the cost
+    stays bounded.
+    """
+    found = found_rows.cell >= 0
+    if not found.any():
+        return found
+    assert found_rows.lowest is not None and found_rows.highest is not None
+    high_px = cells.edges_px()[1]
+    no_seed = found_rows.lowest < 0
+    # Points to search per row: its cells from the lowest candidate down by a slab, up.
+    reach_cells = np.ceil(
+        rule.slab_px(high_px[np.maximum(found_rows.highest, 0)]) / cells.cell_px
+    ).astype(np.int64)
+    start = np.where(no_seed, 0, np.maximum(found_rows.lowest - reach_cells - 2, 0))
+    running = np.cumsum(counts, axis=1)
+    end = np.maximum(found_rows.highest, 0) + 1
+    rows = np.arange(counts.shape[0])
+    size = running[rows, np.minimum(end, counts.shape[1] - 1)] - np.where(
+        start > 0, running[rows, np.maximum(start - 1, 0)], 0
+    )
+    unsure = found_rows.ambiguous()
+    order = np.lexsort((size, ~unsure))  # the open ones first, then by size
+    chosen = np.zeros(found.size, dtype=np.bool_)
+    total = 0
+    for row in order:
+        if found[row] and total + size[row] <= _SEARCH_MAX_POINTS:
+            chosen[row] = True
+            total += int(size[row])
+    return chosen
+
+
+def _search_points(
+    cells: PointCells,
+    candidates: Candidates,
+    rule: SizeRule,
+    unsure_bins: IntArray,
+    found_rows: NearestCells,
+    rows_unsure: npt.NDArray[np.bool_],
+    near_px: npt.NDArray[np.float64],
+    picked: IntArray,
+) -> None:
+    """:func:`nearest_cluster` on the points that can decide the unsure bins (in place).
+
+    A bin's seed lies at or below its highest possible cell and at or above its lowest surely
+    dense one (the bottom when there is none); a seed's window and slab reach at most the
+    slab below it, and points above never count in a window (it looks farther only). The
+    points of those cells are exactly the ones the search on all points would weigh.
+    """
+    assert found_rows.lowest is not None and found_rows.highest is not None
+    low_px, high_px = cells.edges_px()
+    top = np.full(SECTOR_COUNT, -np.inf)
+    bottom = np.full(SECTOR_COUNT, np.inf)
+    highest = found_rows.highest[rows_unsure]
+    lowest = found_rows.lowest[rows_unsure]
+    top_px = high_px[highest] + cells.cell_px
+    low_seed_px = np.where(lowest >= 0, low_px[np.maximum(lowest, 0)], -np.inf)
+    reach_px = rule.slab_px(np.asarray(top_px)) + 2 * cells.cell_px
+    top[unsure_bins] = top_px
+    bottom[unsure_bins] = low_seed_px - reach_px
+    degree_bin = _degree_bins(cells)
+    table = (low_px[None, :] <= top[degree_bin][:, None]) & (
+        high_px[None, :] >= bottom[degree_bin][:, None]
+    )
+    chosen = np.flatnonzero(cells.table(table, False)[cells.key])
+    forward = candidates.forward_m[chosen]
+    right = candidates.right_m[chosen]
+    range_m = np.maximum(np.sqrt(forward * forward + right * right), np.float32(1e-3))
+    disparity = np.asarray(np.float32(cells.focal_baseline) / range_m, np.float32)
+    bins = degree_bin[cells.key[chosen] // cells.counts.shape[1]]
+    distance, index = nearest_cluster(bins, disparity, cells.focal_baseline, *rule)
+    for b in unsure_bins:
+        if np.isfinite(distance[b]) and index[b] >= 0:
+            near_px[b] = float(disparity[index[b]])
+            picked[b] = chosen[index[b]]
+        else:
+            near_px[b] = np.nan
+            picked[b] = -1
+
+
+def _degree_bins(cells: PointCells) -> IntArray:
+    """Sector bin of every bearing row of ``cells.counts``."""
+    degrees = cells.counts.shape[0]
+    return np.mod((np.arange(degrees) + cells.first_degree) // 5 + 36, SECTOR_COUNT)
+
+
+def _reported_points(
+    candidates: Candidates, picked: IntArray, distance_m: FloatArray
+) -> FloatArray:
+    """(72, 3) level-frame point of each bin's reading (NaN where none).
+
+    The measured point picked in the reading's slice of disparity, moved along its bearing to
+    the reported distance (nearer than the point by at most the slice): its bearing and its
+    height.
+    """
+    level = np.full((SECTOR_COUNT, 3), np.nan, dtype=np.float32)
+    bins = np.flatnonzero(picked >= 0)
+    index = picked[bins]
+    forward = candidates.forward_m[index].astype(np.float64)
+    right = candidates.right_m[index].astype(np.float64)
+    scale = distance_m[bins] / np.maximum(np.hypot(forward, right), 1e-9)
+    level[bins, 0] = forward * scale
+    level[bins, 1] = right * scale
+    level[bins, 2] = candidates.down_m[index]
+    return level
 
 
 class Candidates(NamedTuple):
@@ -144,12 +320,19 @@ def sector_scan(
     mount: Mount,
     params: SectorsConfig,
     t_capture_ns: int,
+    cells: PointCells | None = None,
+    workspace: Workspace | None = None,
 ) -> SectorScan:
     """Reduce one head's obstacle points to the 72-bin distance grid.
 
     Every point counts. A bin reports its nearest cluster of at least ``min_pixels`` points
     (see :func:`nearest_cluster`), measured horizontally from the body origin in the level
-    frame. Without one it is clear only on positive evidence: at least ``min_valid_fraction``
+    frame. The search runs on counts per (bin, disparity cell)
+    (:func:`~avoidd.perception.grid.nearest_cells`), so its cost does not grow with the points;
+    its distance is rounded toward nearer by at most about a sixteenth of the cluster window
+    in disparity, never farther. The bin's body point is a measured point of the cell read,
+    moved along its bearing to the reported distance (at its own height). Without one it is
+    clear only on positive evidence: at least ``min_valid_fraction``
     of the pixels of its image columns were measured, at least ``min_free_fraction`` of them
     show free space out to the maximum range (see
     :func:`avoidd.perception.ground.free_space_evidence`), and at most
@@ -167,6 +350,9 @@ def sector_scan(
         mount: The head's mount.
         params: Robustness parameters.
         t_capture_ns: Capture time of the frame, carried into the scan.
+        cells: The points binned by :func:`~avoidd.perception.grid.point_cells` (binned here
+            when None).
+        workspace: Where per-point temporaries live (see :mod:`avoidd.perception.workspace`).
 
     Returns:
         The scan: metres, NaN unknown, ``inf`` clear, with the body point of each finite bin.
@@ -179,45 +365,68 @@ def sector_scan(
         columns.bins, weights=unresolved_per_column, minlength=SECTOR_COUNT
     )
 
-    forward, right = candidates.forward_m, candidates.right_m
-    range_m = np.sqrt(forward * forward + right * right)  # a third of np.hypot's time
-    focal_baseline = np.float32(rig.fx * rig.baseline_m)
-    bins, turns = _bins_of_points(forward, right)
-    disparity = np.asarray(focal_baseline / np.maximum(range_m, np.float32(1e-3)), np.float32)
-    nearest, picked = nearest_cluster(
-        bins,
-        disparity,
-        focal_baseline,
+    focal_baseline = float(rig.fx * rig.baseline_m)
+    if cells is None:
+        cells = point_cells(
+            candidates.forward_m, candidates.right_m, focal_baseline, params.cluster_window_px
+        )
+    rule = SizeRule(
         params.min_pixels,
         params.cluster_window_px,
         params.min_size_m / rig.baseline_m,
-        params.min_size_m / float(focal_baseline),
+        params.min_size_m / focal_baseline,
     )
+    per_bin, bin_index = sector_counts(cells)
+    # A bin is one row; a row 72 bins from another is the same bin seen across +-180 degrees
+    # (a view wider than 355 degrees): its counts join the other's.
+    bins, row_of = np.unique(bin_index, return_inverse=True)
+    merged = np.zeros((bins.size, per_bin.shape[1]), dtype=np.int64)
+    np.add.at(merged, row_of, per_bin)
+    found_rows = nearest_cells(merged, cells.first_cell, cells.cell_px, rule)
+    where = NearestCells(
+        np.full(SECTOR_COUNT, -1, dtype=np.int64), np.full(SECTOR_COUNT, -1, dtype=np.int64)
+    )
+    where.cell[bins], where.rank[bins] = found_rows.cell, found_rows.rank
+    near_px, picked = refine(
+        cells,
+        candidates.forward_m,
+        candidates.right_m,
+        row_targets(cells, _degree_bins(cells), where),
+        where,
+        workspace,
+    )
+    rows_unsure = _worth_searching(cells, found_rows, merged, rule)
+    if rows_unsure.any():
+        # Where the counts leave the seed's cell open (scattered points that nearly make a
+        # nearer cluster), the points of those bins' candidate cells decide, as the search on
+        # all points would.
+        _search_points(
+            cells, candidates, rule, bins[rows_unsure], found_rows, rows_unsure, near_px, picked
+        )
+    found = np.isfinite(near_px)
+    nearest = np.full(SECTOR_COUNT, np.nan, dtype=np.float32)
+    nearest[found] = (np.float32(focal_baseline) / near_px[found]).astype(np.float32)
     # A cluster narrower than the smallest obstacle is a strip of background beside a
     # silhouette, or a sliver of an object reported in the next bin: the bin cannot vouch for
     # a reading (never look behind it: that would read farther), nor for clear space.
-    narrow = _narrow(
-        bins,
-        turns,
-        disparity,
+    narrow = _narrow_cells(
+        cells,
+        np.where(found, near_px, np.nan),
         nearest,
-        float(focal_baseline),
         rig.fx,
         params.cluster_window_px,
         params.min_size_m,
         np.bincount(columns.bins, minlength=SECTOR_COUNT),
+        workspace,
     )
     nearest[narrow] = np.nan
     picked[narrow] = -1
-    has_obstacle = np.isfinite(nearest)
+    has_obstacle = np.isfinite(nearest) & (picked >= 0)
     distance = nearest.astype(np.float32)
     points = np.full((SECTOR_COUNT, 3), np.nan, dtype=np.float32)
-    index = picked[has_obstacle]
-    level = np.stack(
-        [candidates.forward_m[index], candidates.right_m[index], candidates.down_m[index]], axis=1
-    )
+    level = _reported_points(candidates, picked, nearest)
     # Body = transpose(level_from_body) @ level; with row vectors that is level @ R.
-    points[has_obstacle] = (level @ candidates.level_from_body).astype(np.float32)
+    points[has_obstacle] = (level[has_obstacle] @ candidates.level_from_body).astype(np.float32)
 
     valid_fraction = valid_count / np.maximum(total, 1)
     free_fraction = free_count / np.maximum(total, 1)
@@ -306,23 +515,7 @@ def nearest_cluster(
     return distance, chosen
 
 
-class _SizeRule(NamedTuple):
-    """What makes a cluster (see :func:`nearest_cluster`)."""
-
-    min_pixels: int
-    window_px: float
-    min_size_px_per_px: float
-    slab_px_per_px2: float
-
-    def slab_px(self, disparity_px: npt.NDArray[np.floating]) -> npt.NDArray[np.float64]:
-        """Disparity depth of the size slab at each disparity (at least the window)."""
-        d = np.asarray(disparity_px, dtype=np.float64)
-        return np.maximum(self.window_px, self.slab_px_per_px2 * d * d)
-
-    def area_px(self, disparity_px: npt.NDArray[np.floating]) -> npt.NDArray[np.float64]:
-        """Pixel area of the size square at each disparity."""
-        side = self.min_size_px_per_px * np.asarray(disparity_px, dtype=np.float64)
-        return side * side
+_SizeRule = SizeRule
 
 
 def _no_clusters() -> tuple[FloatArray, IntArray]:
