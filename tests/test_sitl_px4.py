@@ -111,14 +111,8 @@ async def test_px4_discovery_streams_arming_and_restart(px4_sitl_dir: Path, tmp_
     assert attitude_hz >= 20 and position_hz >= 5
 
 
-def _folded(distances: list[int]) -> list[int]:
-    return [int(d) for d in distances[:36]]
-
-
-async def test_px4_collision_prevention_stops_a_pushed_vehicle_on_avoidd_data(
-    px4_sitl_dir: Path, monkeypatch: pytest.MonkeyPatch
-) -> None:
-    """Position mode, MPC_POS_MODE 0, CP_DIST 2: full forward stick at a wall 12 m ahead."""
+def _record_sent(monkeypatch: pytest.MonkeyPatch) -> list[tuple[int, Any]]:
+    """Every OBSTACLE_DISTANCE avoidd sends from now on, with the time it was built."""
     sent: list[tuple[int, Any]] = []
     build = Outputs.obstacle_distance_message
 
@@ -129,6 +123,18 @@ async def test_px4_collision_prevention_stops_a_pushed_vehicle_on_avoidd_data(
         return message
 
     monkeypatch.setattr(Outputs, "obstacle_distance_message", recording)
+    return sent
+
+
+def _folded(distances: list[int]) -> list[int]:
+    return [int(d) for d in distances[:36]]
+
+
+async def test_px4_collision_prevention_stops_a_pushed_vehicle_on_avoidd_data(
+    px4_sitl_dir: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    """Position mode, MPC_POS_MODE 0, CP_DIST 2: full forward stick at a wall 12 m ahead."""
+    sent = _record_sent(monkeypatch)
     t0 = time.monotonic()
     scenario = load_scenario(SCENARIOS / "wall-stop.yaml")
     run = Px4Run(scenario, px4_sitl_dir, mode="push", cp_dist_m=2.0)
@@ -191,16 +197,7 @@ async def test_px4_blocks_motion_into_bins_avoidd_reports_unknown_after_its_came
     avoidd sends every bin as unknown (65535) once its data is stale, PX4's merged map holds no
     reading, and the vehicle stays put; with the camera back it flies on and stops at the wall.
     """
-    sent: list[tuple[int, Any]] = []
-    build = Outputs.obstacle_distance_message
-
-    def recording(self: Outputs, now_ns: int) -> Any:
-        message = build(self, now_ns)
-        if message is not None:
-            sent.append((time.monotonic_ns(), message))
-        return message
-
-    monkeypatch.setattr(Outputs, "obstacle_distance_message", recording)
+    sent = _record_sent(monkeypatch)
     t0 = time.monotonic()
     scenario = load_scenario(SCENARIOS / "blind-push.yaml")
     replug_s = next(a.t_s for a in scenario.timeline if a.action == "camera_replug")

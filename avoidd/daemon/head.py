@@ -168,13 +168,7 @@ class Head:
                     self._capture_log.report(
                         logging.ERROR, "open failed", f"{exc}; retrying with backoff"
                     )
-                    if not lost:
-                        self._announce(
-                            mav.MAV_SEVERITY_CRITICAL,
-                            f"avoidd: {self.name} camera lost",
-                            f"camera {self.name}",
-                        )
-                        lost = True
+                    lost = self._say_lost(lost)
                     self._stop.wait(backoff_s)
                     backoff_s = min(backoff_s * 2, high_s)
                     continue
@@ -208,13 +202,7 @@ class Head:
                     "source lost",
                     f"head '{self.name}': source lost ({exc}); reopening with backoff",
                 )
-                if not lost:
-                    self._announce(
-                        mav.MAV_SEVERITY_CRITICAL,
-                        f"avoidd: {self.name} camera lost",
-                        f"camera {self.name}",
-                    )
-                    lost = True
+                lost = self._say_lost(lost)
                 with contextlib.suppress(Exception):
                     source.close()
                 source = None
@@ -246,6 +234,14 @@ class Head:
         if source is not None:
             with contextlib.suppress(Exception):
                 source.close()
+
+    def _say_lost(self, lost: bool) -> bool:
+        """Announce the camera lost unless it is already; returns True (lost now)."""
+        if not lost:
+            self._announce(
+                mav.MAV_SEVERITY_CRITICAL, f"avoidd: {self.name} camera lost", f"camera {self.name}"
+            )
+        return True
 
     def _read(self, source: FrameSource) -> StereoFrame:
         """Read a frame, noting when the read started while it lasts."""
