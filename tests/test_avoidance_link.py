@@ -9,11 +9,13 @@ import math
 import sys
 import time
 from pathlib import Path
+from types import SimpleNamespace
 from typing import Any
 
 import pytest
 
-from avoidd.daemon.avoidance import VELOCITY_YAW_RATE_MASK
+from avoidd.config import AvoidanceConfig, GoalConfig
+from avoidd.daemon.avoidance import VELOCITY_YAW_RATE_MASK, AvoidanceLoop
 from avoidd.daemon.stats import log_line
 from avoidd.mavlink import codec as mav
 from avoidd.mavlink.goto import LocalGoal, send_goal
@@ -116,6 +118,27 @@ async def test_px4_prestreams_hold_setpoints_until_offboard(tmp_path: Path) -> N
     finally:
         await stop(daemon, task)
         await autopilot.stop()
+
+
+def test_a_goal_given_before_the_first_mode_is_heard_still_prestreams() -> None:
+    """The start rule (armed in another mode when avoidd starts: someone else flies) is about
+    the goal avoidd started with; a goal given afterwards is the ground station asking."""
+    vehicle = SimpleNamespace(mode=None, link_up=True, reboots=0, wants_origin=False)
+    config = AvoidanceConfig(enabled=True, px4_prestream=True)
+    loop = AvoidanceLoop(config, None, vehicle, None, lambda *a: None, 20.0)  # type: ignore[arg-type]
+    loop.set_goal(Goal(10.0, 0.0, 2.0, "GCS goal"))
+    vehicle.mode = SimpleNamespace(armed=True, guided=False, autopilot="PX4")
+    assert not loop.facts(fresh=True).taken_over
+    # Without a goal given after the start, the rule holds.
+    started_with_goal = AvoidanceLoop(
+        config.model_copy(update={"goal": GoalConfig(north_m=10.0, east_m=0.0, altitude_m=2.0)}),
+        None,  # type: ignore[arg-type]
+        vehicle,  # type: ignore[arg-type]
+        None,  # type: ignore[arg-type]
+        lambda *a: None,
+        20.0,
+    )
+    assert started_with_goal.facts(fresh=True).taken_over
 
 
 async def test_stale_perception_is_an_explicit_zero_velocity_hold(tmp_path: Path) -> None:

@@ -435,6 +435,10 @@ class AvoidanceLoop:
         """Fly to a new goal from now on (the obstacle memory is kept)."""
         self.goal = goal
         self.taken_over = False
+        # A goal given after avoidd started supersedes the rule about the mode it found at
+        # start: without this, a goal that arrives before the first heartbeat is decoded
+        # would be followed by "armed in another mode at start" and no prestream (seen).
+        self._mode_seen = True
         self.planner.reset()
         logger.info(
             "avoidance: new %s: %.1f m north, %.1f m east, %.1f m up",

@@ -86,6 +86,10 @@ class RealtimeRun(ExternalRun):
             # goal avoidd already has when it first sees PX4 armed in another mode does not
             # prestream (someone else flies it; see the avoidance loop).
             self._send_goal(*self.goal)
+            if self.autopilot.rules.flavour == "px4":
+                # A pilot switches to OFFBOARD once the companion streams (its first scans
+                # take longer on a loaded machine): the timeline starts from there.
+                await self._wait_setpoints(20.0)
             self._t0_ns = time.monotonic_ns()
             autopilot.on_step = self._on_step
             await self._play()
@@ -113,6 +117,14 @@ class RealtimeRun(ExternalRun):
         assert daemon is not None
         deadline = time.monotonic() + timeout_s
         while not daemon.vehicle.link_up and time.monotonic() < deadline:
+            await asyncio.sleep(0.05)
+
+    async def _wait_setpoints(self, timeout_s: float) -> None:
+        """Until avoidd sends setpoints (PX4: its prestream), at most ``timeout_s``."""
+        daemon = self.daemon
+        assert daemon is not None
+        deadline = time.monotonic() + timeout_s
+        while daemon.sent["SET_POSITION_TARGET_LOCAL_NED"] == 0 and time.monotonic() < deadline:
             await asyncio.sleep(0.05)
 
     def _on_step(self, now_ns: int) -> None:
