@@ -50,6 +50,7 @@ class _SlowPipeline:
         self.log: list[tuple[str, int, float, float]] = []  # stage, seq, start, end
         self.busy = 0
         self.most_busy = 0
+        self.threads: set[tuple[str, str]] = set()
         self._lock = threading.Lock()
 
     def _enter(self) -> float:
@@ -61,6 +62,7 @@ class _SlowPipeline:
     def _leave(self, stage: str, seq: int, started: float) -> None:
         with self._lock:
             self.busy -= 1
+            self.threads.add((stage, threading.current_thread().name))
             self.log.append((stage, seq, started, time.monotonic()))
 
     def match(self, frame: StereoFrame) -> Matched:
@@ -158,10 +160,14 @@ def test_overlapped_head_matches_the_next_frame_while_finishing_and_keeps_order(
     assert head.slot.skipped > offered // 2
     assert len(matches) - len(finishes) <= 2
     assert head.stats.processed == len(finishes)
+    # Each stage always on its own thread (their scratch arrays are per thread).
+    names = dict(slow.threads)
+    assert len(slow.threads) == 2 and names["match"] != names["finish"]
 
 
 def test_head_without_overlap_runs_one_stage_at_a_time() -> None:
     head, slow, published, _ = _run_head(overlap=False, seconds=0.8)
     assert slow.most_busy == 1
+    assert len({name for _, name in slow.threads}) == 1  # one thread for both
     assert published == sorted(published) and len(published) >= 3
     assert head.stats.processed == sum(1 for stage, *_ in slow.log if stage == "finish")

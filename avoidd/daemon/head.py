@@ -4,11 +4,13 @@ from __future__ import annotations
 
 import asyncio
 import contextlib
+import functools
 import logging
 import threading
 import time
 from collections import deque
 from collections.abc import Callable
+from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Protocol, TypeVar
@@ -95,6 +97,14 @@ class Head:
     ) -> None:
         self.config = config
         self._overlap = overlap
+        # One thread per stage, always the same: the stages keep per-thread scratch arrays
+        # (tens of MB at 640x480), which a shared pool would grow with every thread it adds.
+        self._match_pool = ThreadPoolExecutor(1, thread_name_prefix=f"match-{config.name}")
+        self._finish_pool = (
+            ThreadPoolExecutor(1, thread_name_prefix=f"finish-{config.name}")
+            if overlap
+            else self._match_pool
+        )
         self.name = config.name
         self.pipeline = HeadPipeline(config, calibration, max_range_m, perception)
         self.filter = SectorFilter(perception.temporal)
@@ -141,8 +151,10 @@ class Head:
         self._thread.start()
 
     def join(self, timeout_s: float) -> None:
-        """Wait for the capture thread to finish."""
+        """Wait for the capture thread to finish; let the stage threads end."""
         self._thread.join(timeout_s)
+        self._match_pool.shutdown(wait=False)
+        self._finish_pool.shutdown(wait=False)
 
     def _backoff_range(self) -> tuple[float, float]:
         source = self.config.source
@@ -295,7 +307,7 @@ class Head:
         if not self._overlap:
             while True:
                 frame = await self.slot.get()
-                matched = await self._guarded(frame, self.pipeline.match, frame)
+                matched = await self._guarded(self._match_pool, frame, self.pipeline.match, frame)
                 if matched is not None:
                     await self._finish(matched)
         handoff: asyncio.Queue[Matched] = asyncio.Queue(maxsize=1)
@@ -315,7 +327,7 @@ class Head:
                 if finishing.done():
                     finishing.result()  # a finisher that died takes the task with it
                 frame = await self.slot.get()
-                matched = await self._guarded(frame, self.pipeline.match, frame)
+                matched = await self._guarded(self._match_pool, frame, self.pipeline.match, frame)
                 if matched is not None:
                     taken.clear()
                     handoff.put_nowait(matched)
@@ -326,7 +338,7 @@ class Head:
         """Post-process, interpret and publish one matched frame."""
         frame = matched.frame
         pose = self._pose_for(frame)
-        result = await self._guarded(frame, self.pipeline.finish, matched, pose)
+        result = await self._guarded(self._finish_pool, frame, self.pipeline.finish, matched, pose)
         if result is None:
             return
         self._compute_failing = False
@@ -344,11 +356,12 @@ class Head:
         self.stats.latency_ms.append((time.monotonic_ns() - result.t_capture_ns) / 1e6)
 
     async def _guarded(
-        self, frame: StereoFrame, stage: Callable[..., _R], *args: object
+        self, pool: ThreadPoolExecutor, frame: StereoFrame, stage: Callable[..., _R], *args: object
     ) -> _R | None:
-        """Run a stage in a worker thread; a failure is counted and logged, and gives None."""
+        """Run a stage in its thread; a failure is counted and logged, and gives None."""
         try:
-            return await asyncio.to_thread(stage, *args)
+            loop = asyncio.get_running_loop()
+            return await loop.run_in_executor(pool, functools.partial(stage, *args))
         except BrokenFrame as exc:
             self.stats.broken += 1
             self._compute_log.report(logging.WARNING, "broken", self._about(exc))
