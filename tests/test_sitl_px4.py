@@ -346,7 +346,12 @@ async def test_px4_leaves_offboard_when_avoidd_stops_and_a_restarted_avoidd_wait
             str(mavutil.interpret_px4_mode(m.base_mode, m.custom_mode))
             for m in gcs.of_type("HEARTBEAT", since)
         }
-        speeds = [math.hypot(m.vx, m.vy) for m in gcs.of_type("LOCAL_POSITION_NED", since)]
+        track = gcs.of_type("LOCAL_POSITION_NED", since)
+        speeds = [math.hypot(m.vx, m.vy) for m in track]
+        # The last second of the silent window (PX4's own clock: loaded machines stretch ours).
+        last_s = [
+            math.hypot(m.vx, m.vy) for m in track if m.time_boot_ms >= track[-1].time_boot_ms - 1000
+        ]
         assert _state(daemon) == flies
         assert daemon.avoidance is not None and daemon.avoidance.sent == 0
         # The pilot hands over again: Position mode (ends PX4's pending return to OFFBOARD),
@@ -371,12 +376,16 @@ async def test_px4_leaves_offboard_when_avoidd_stops_and_a_restarted_avoidd_wait
         await sitl.stop()
     print(
         f"\nloss: PX4 left OFFBOARD {fallback_s:.2f} s after avoidd stopped, into "
-        f"{fallback_mode}; restarted avoidd silent 4 s, PX4 in {sorted(modes)} at <= "
-        f"{max(speeds):.2f} m/s; new goal: {prestreamed} prestream setpoints, PX4 in "
+        f"{fallback_mode}; restarted avoidd silent 4 s, PX4 in {sorted(modes)}, speed "
+        f"{speeds[0]:.2f} m/s at first, at most {max(speeds):.2f}, in the last second at most "
+        f"{max(last_s):.2f} m/s; new goal: {prestreamed} prestream setpoints, PX4 in "
         f"{sorted(prestream_modes)}; after OFFBOARD: {flying_state}; "
         f"test {time.monotonic() - t0:.0f} s"
     )
     assert fallback_mode == "POSCTL"
     assert fallback_s <= 3.0
     assert modes == {"POSCTL"} and prestream_modes == {"POSCTL"}
-    assert max(speeds) < 0.6
+    # PX4 brakes from avoidd's last speed (how far it got depends on when the window starts)
+    # and holds: nothing speeds the vehicle up while avoidd is silent.
+    assert max(speeds) <= speeds[0] + 0.4
+    assert max(last_s) < 0.5
