@@ -9,6 +9,7 @@ from __future__ import annotations
 
 import asyncio
 import contextlib
+import itertools
 import math
 import time
 from pathlib import Path
@@ -126,6 +127,13 @@ def _record_sent(monkeypatch: pytest.MonkeyPatch) -> list[tuple[int, Any]]:
     return sent
 
 
+def _longest_gap_s(sent: list[tuple[int, Any]]) -> float:
+    """The longest pause in avoidd's OBSTACLE_DISTANCE stream (PX4 drops data older than 0.5 s:
+    a loaded machine's pause shows here when PX4 stops a push early)."""
+    times = [t for t, _ in sent]
+    return max((b - a for a, b in itertools.pairwise(times)), default=0) / 1e9
+
+
 def _folded(distances: list[int]) -> list[int]:
     return [int(d) for d in distances[:36]]
 
@@ -147,6 +155,7 @@ async def test_px4_collision_prevention_stops_a_pushed_vehicle_on_avoidd_data(
         f"\npush: closest approach edge {closest.clearance_m:.2f} m (centre "
         f"{closest.clearance_m + radius_m:.2f} m, CP_DIST 2.0) at {closest.t_s:.1f} s; top speed "
         f"{max(s.speed_m_s for s in summary.samples):.1f} m/s; end N{summary.final_ne_m[0]:.2f}; "
+        f"longest gap between avoidd's OBSTACLE_DISTANCE {_longest_gap_s(sent):.2f} s; "
         f"test {time.monotonic() - t0:.0f} s"
     )
     assert not summary.collided
