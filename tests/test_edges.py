@@ -4,8 +4,10 @@ from __future__ import annotations
 
 import numpy as np
 
+from avoidd.config import PostprocessConfig
 from avoidd.evaluation.edges import edge_suite, format_edges, run_edge_case
 from avoidd.vision.edges import fattened_pixels, hidden_from_right, short_occlusion_gaps
+from avoidd.vision.postprocess import postprocess_disparity
 
 
 def test_a_pixel_a_nearer_one_hides_from_the_right_camera_is_dropped() -> None:
@@ -63,3 +65,24 @@ def test_silhouettes_against_the_tree_line_do_not_spill_into_the_next_bin() -> N
     assert len(treeline) == 12
     assert [r.beside for r in treeline] == [[] for _ in treeline]
     assert [r.missed for r in results] == [None] * len(results)
+
+
+def test_sky_the_matcher_smoothed_over_is_no_background_for_the_edge_checks() -> None:
+    # SGBM carries a pole's disparity across the untextured sky around it: no depth edge in
+    # its map. The texture gate drops that sky, but when it came after the edge checks they
+    # saw no edge, and the sky columns beside the pole (inside the gate's window, so textured
+    # enough) stayed as obstacle points on both sides. The gate comes first now.
+    rng = np.random.default_rng(5)
+    height, width = 40, 120
+    sky = 190.0 + rng.normal(0.0, 1.0, (height, width))
+    left, right = sky.copy(), sky.copy()
+    pole = rng.uniform(20.0, 60.0, (height, 4))
+    left[:, 60:64] = pole
+    right[:, 50:54] = pole
+    disparity = np.full((height, width), 10.0, dtype=np.float32)  # pole and sky alike
+    post = postprocess_disparity(
+        left.astype(np.uint8), right.astype(np.uint8), disparity, PostprocessConfig()
+    )
+    measured = np.isfinite(post.disparity[4:-4])
+    assert measured[:, 60:64].mean() > 0.9  # the pole
+    assert not measured[:, :60].any() and not measured[:, 64:].any()  # the sky

@@ -304,6 +304,13 @@ def _reference_block(
         disparity = _reference_median(disparity, post.median_size)
     disparity = remove_speckles(disparity, post.speckle_window_px, post.speckle_range_px)
     disparity = disparity.copy()
+    if texture is not None:
+        disparity[~texture] = np.nan
+    textured = texture
+    if post.min_texture_snr > 0:
+        gate = _reference_gate(left, post.texture_window_px, post.min_texture_snr)
+        disparity[~gate] = np.nan
+        textured = gate if textured is None else textured & gate
     if post.edge_radius_px:
         disparity[_reference_hidden(disparity)] = np.nan
         short = _reference_short_gaps(disparity, post.edge_jump_px, 2 * post.edge_radius_px)
@@ -312,13 +319,6 @@ def _reference_block(
             left, right, disparity, post.edge_radius_px, post.edge_jump_px, _reference_sigma(left)
         )
         disparity[fattened] = np.nan
-    if texture is not None:
-        disparity[~texture] = np.nan
-    textured = texture
-    if post.min_texture_snr > 0:
-        gate = _reference_gate(left, post.texture_window_px, post.min_texture_snr)
-        disparity[~gate] = np.nan
-        textured = gate if textured is None else textured & gate
     filled_display = fill_holes(disparity) if post.fill_holes else None
     if filled_by_matcher is not None:
         disparity[filled_by_matcher] = np.nan

@@ -307,3 +307,18 @@ def test_near_clusters_must_be_as_large_as_a_small_object_there() -> None:
         np.zeros(20, dtype=np.int64), np.full(20, 4.0, np.float32), 48.0, 20, 0.8, 0.05 / 0.12
     )
     assert far[0] == pytest.approx(12.0)
+
+
+def test_many_points_that_make_no_cluster_leave_the_bin_unknown_not_clear() -> None:
+    # The corner of a round pole 1 m away, or a slanted surface: hundreds of obstacle points
+    # in one bin, spread over 1 to 3 m, so that no disparity slab holds a 5 cm square of them.
+    # No reading can be vouched for, and the bin must not read clear either.
+    depth = far_scene()
+    rng = np.random.default_rng(7)
+    column = column_at(10.0)
+    rows = rng.integers(180, 300, 400)
+    columns = column + rng.integers(-12, 12, 400)
+    depth[rows, columns] = rng.uniform(1.0, 3.0, 400)
+    distance = scan_of(depth)
+    assert np.isnan(distance[2])
+    assert distance[0] == np.inf and distance[5] == np.inf

@@ -430,7 +430,12 @@ def sector_scan(
 
     valid_fraction = valid_count / np.maximum(total, 1)
     free_fraction = free_count / np.maximum(total, 1)
-    clear = ~has_obstacle & ~narrow & (total > 0)
+    # Obstacle points enough for a cluster that spread over too wide a range of disparities to
+    # make one (a round pole's corner, a slanted surface): something stands there, at no
+    # distance the bin can vouch for. Unknown, never clear.
+    points_per_bin = np.zeros(SECTOR_COUNT, dtype=np.int64)
+    points_per_bin[bins] = merged.sum(axis=1)
+    clear = ~has_obstacle & ~narrow & (total > 0) & (points_per_bin < params.min_pixels)
     clear &= valid_fraction >= params.min_valid_fraction
     clear &= free_fraction >= params.min_free_fraction
     clear &= unresolved_count / np.maximum(total, 1) <= params.max_unresolved_fraction

@@ -361,14 +361,9 @@ def postprocess_disparity(
         disparity = np.array(disparity, dtype=np.float32, order="C")  # never the input
     nan = np.float32(np.nan)
     flat = disparity.ravel()  # a view: the map is contiguous
-    sigma = None
-    if config.edge_radius_px:
-        np.copyto(disparity, nan, where=hidden_from_right(disparity))
-        radius, jump = config.edge_radius_px, config.edge_jump_px
-        flat[short_gap_indices(disparity, jump, 2 * radius)] = nan
-        sigma = noise_sigma(left)
-        # Background that took the silhouette's disparity.
-        flat[fattened_indices(left, right, disparity, radius, jump, sigma)] = nan
+    sigma = noise_sigma(left) if config.edge_radius_px or config.min_texture_snr > 0 else None
+    # Untextured pixels first: what the matcher guessed there (sky, blank walls) is no surface,
+    # so a silhouette against them is a depth edge for the checks below.
     if texture is not None:
         np.copyto(disparity, nan, where=~texture)  # untextured: not measured, never guessed
     textured = texture
@@ -376,6 +371,13 @@ def postprocess_disparity(
         gate = texture_gate(left, config.texture_window_px, config.min_texture_snr, sigma)
         np.copyto(disparity, nan, where=~gate)  # contrast below the noise: a guess
         textured = gate if textured is None else textured & gate
+    if config.edge_radius_px:
+        assert sigma is not None
+        np.copyto(disparity, nan, where=hidden_from_right(disparity))
+        radius, jump = config.edge_radius_px, config.edge_jump_px
+        flat[short_gap_indices(disparity, jump, 2 * radius)] = nan
+        # Background that took the silhouette's disparity.
+        flat[fattened_indices(left, right, disparity, radius, jump, sigma)] = nan
     # The display map is filled before anything is blanked; the map obstacles see is not.
     filled = fill_holes(disparity) if config.fill_holes else None
     if filled_by_matcher is not None:
