@@ -11,6 +11,7 @@ import numpy.typing as npt
 
 from avoidd.config import HeadConfig, PerceptionConfig
 from avoidd.errors import BrokenFrame
+from avoidd.perception.ground_match import Views
 from avoidd.perception.obstacles import Obstacle
 from avoidd.perception.perceive import perceive
 from avoidd.perception.pose import resolve_pose
@@ -300,7 +301,7 @@ class HeadPipeline:
         disparity, filled_by_matcher = matched.disparity, matched.filled_by_matcher
         lap = Laps()
         post = postprocess_disparity(left, right, disparity, self._post, texture, filled_by_matcher)
-        disparity, textured, filled_display = post
+        disparity, textured, filled_display, sigma = post
         lap("post")
         band = self._matcher.num_disparities
         if band:
@@ -329,6 +330,7 @@ class HeadPipeline:
             with_obstacles,
             self.rectified_from_raw,
             np.count_nonzero(unresolved, axis=0),
+            Views(left, right, disparity, sigma),
         )
         lap("obstacles")
         valid = float(np.count_nonzero(~np.isnan(disparity))) / disparity.size

@@ -57,8 +57,8 @@ def test_silhouettes_against_the_tree_line_do_not_spill_into_the_next_bin() -> N
     # Seeded boxes and poles with a side edge 0.2 to 1.5 deg past a bin boundary, a third of
     # them 5 cm poles at 5 m. Against the tree line: no bin beside the object reads it, and
     # every object is read within 10% in its bin or the next (`avoidd eval-perception
-    # --edge-scenes`). Over open flat ground (the odd scenes) far ground read too near
-    # stands up at 5 to 19 m all over (docs/perception.md): not scored here.
+    # --edge-scenes`). The open-sky scenes (the odd ones) still show a few such bins; that
+    # no far ground stands up there is tests/test_ground_match.py's.
     results = [run_edge_case(c) for c in edge_suite(24, seed=4242)]
     print(format_edges(results))
     treeline = [r for r in results if r.name.endswith("treeline")]

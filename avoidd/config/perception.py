@@ -24,6 +24,11 @@ class GroundConfig(Strict):
             much smaller (farther along its ray): far ground measured a pixel too near would
             otherwise stand up as an obstacle.
         rangefinder_max_age_ms: A rangefinder reading older than this is not used.
+        match_band_px: Obstacle points at most this much disparity nearer than the ground
+            behind them are checked against the ground: where the images match the ground
+            plane's disparity as well as the measured one, the point is ground read too near
+            and dropped (semi-global matching smooths weakly textured far ground under open
+            sky 2 to 5 px too near; see ``avoidd.perception.ground_match``). 0: no check.
     """
 
     height_m: float = Field(1.5, gt=0.0, le=500.0)
@@ -31,6 +36,7 @@ class GroundConfig(Strict):
     margin_m: float = Field(0.3, ge=0.0, le=5.0)
     disparity_tolerance_px: float = Field(1.0, ge=0.0, le=16.0)
     rangefinder_max_age_ms: int = Field(500, ge=10, le=5000)
+    match_band_px: float = Field(6.0, ge=0.0, le=64.0)
 
 
 class BandConfig(Strict):

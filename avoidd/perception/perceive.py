@@ -8,11 +8,12 @@ from typing import NamedTuple
 import numpy as np
 import numpy.typing as npt
 
-from avoidd.config import HistogramConfig, PerceptionConfig, SectorsConfig
+from avoidd.config import GroundConfig, HistogramConfig, PerceptionConfig, SectorsConfig
 from avoidd.errors import BrokenFrame
-from avoidd.perception.frames import Matrix, Pose, body_to_level, camera_to_level
+from avoidd.perception.frames import Matrix, Pose, axis_per_depth, body_to_level, camera_to_level
 from avoidd.perception.grid import point_cells
 from avoidd.perception.ground import obstacle_points
+from avoidd.perception.ground_match import Views, explained_by_ground
 from avoidd.perception.obstacles import Obstacle, cluster_obstacles
 from avoidd.perception.sectors import Candidates, sector_scan
 from avoidd.perception.workspace import Workspace
@@ -53,6 +54,7 @@ def perceive(
     with_obstacles: bool = False,
     rectified_from_raw: Matrix | None = None,
     unresolved_per_column: npt.NDArray[np.integer] | None = None,
+    views: Views | None = None,
 ) -> Perception:
     """Turn a measured depth map into the head's sector scan (and obstacles).
 
@@ -71,6 +73,9 @@ def perceive(
             (the mount describes the physical camera); identity when None.
         unresolved_per_column: (W,) textured pixels per column left without a measurement
             (a bin with many is not clear); None: none.
+        views: The views the depth map was matched on: obstacle points below the horizon
+            that match the ground plane's disparity as well are dropped (see
+            :mod:`avoidd.perception.ground_match`); None: no such check.
 
     Returns:
         The head's perception of the frame.
@@ -108,6 +113,10 @@ def perceive(
         workspace,
         whole_image=True,
     )
+    if views is not None and config.ground.match_band_px > 0:
+        _drop_what_the_ground_explains(
+            points.mask, views, rig, to_level, pose.height_m, config.ground, workspace
+        )
     forward, right, down = points.level
     mask = points.mask.ravel()
     candidates = int(np.count_nonzero(mask))
@@ -166,3 +175,29 @@ def perceive(
             workspace,
         )
     return Perception(scan, obstacles, candidates, pose, points.mask)
+
+
+def _drop_what_the_ground_explains(
+    mask: BoolArray,
+    views: Views,
+    rig: RectifiedRig,
+    to_level: Pose,
+    height_m: float,
+    ground_config: GroundConfig,
+    workspace: Workspace,
+) -> None:
+    """Clear the candidates of ``mask`` that the ground plane's disparity explains as well."""
+    camera_height_m = height_m - float(to_level.translation[2])
+    if not camera_height_m > 0.0 or not mask.any():
+        return
+    # A pixel's point lies Z * down_map below the camera: it meets the ground at
+    # Z = camera height / down_map, where its disparity is f B / Z - doffs.
+    shape = mask.shape
+    ground = axis_per_depth(
+        rig, shape, to_level, 2, workspace.array("ground_disparity", shape, np.float32)
+    )
+    ground *= np.float32(rig.fx * rig.baseline_m / camera_height_m)
+    if rig.doffs_px:
+        # Where the ray misses the ground the product is at most 0: it stays so.
+        np.subtract(ground, np.float32(rig.doffs_px), out=ground, where=ground > 0)
+    mask &= ~explained_by_ground(views, ground, mask, workspace, ground_config.match_band_px)

@@ -319,11 +319,13 @@ class PostResult(NamedTuple):
         textured: Pixels with texture enough to match (the texture mask and the texture
             gate, where on), or None when neither is on.
         filled: The hole-filled map for display (``fill_holes`` on), else None.
+        noise_sigma: The left view's sensor noise in grey levels (see :func:`noise_sigma`).
     """
 
     disparity: FloatArray
     textured: BoolArray | None
     filled: FloatArray | None
+    noise_sigma: float
 
 
 def postprocess_disparity(
@@ -336,10 +338,11 @@ def postprocess_disparity(
 ) -> PostResult:
     """Every post-processing step after the matcher, in order, on one disparity map.
 
-    Sub-pixel refinement, median, speckles, the depth-edge checks (hidden from the right
-    camera, too narrow occlusion gaps, foreground fattening), the texture mask and gate, the
+    Sub-pixel refinement, median, speckles, the texture mask and gate, the depth-edge checks
+    (hidden from the right camera, too narrow occlusion gaps, foreground fattening), the
     display fill, and last the matcher's filled pixels dropped. The view's noise is estimated
-    once and serves both the fattening check and the texture gate.
+    once and serves the texture gate, the fattening check and, through the result, the ground
+    check of the obstacle stage.
 
     Args:
         left: Rectified left grey view (the disparity's reference).
@@ -361,7 +364,7 @@ def postprocess_disparity(
         disparity = np.array(disparity, dtype=np.float32, order="C")  # never the input
     nan = np.float32(np.nan)
     flat = disparity.ravel()  # a view: the map is contiguous
-    sigma = noise_sigma(left) if config.edge_radius_px or config.min_texture_snr > 0 else None
+    sigma = noise_sigma(left)
     # Untextured pixels first: what the matcher guessed there (sky, blank walls) is no surface,
     # so a silhouette against them is a depth edge for the checks below.
     if texture is not None:
@@ -372,7 +375,6 @@ def postprocess_disparity(
         np.copyto(disparity, nan, where=~gate)  # contrast below the noise: a guess
         textured = gate if textured is None else textured & gate
     if config.edge_radius_px:
-        assert sigma is not None
         np.copyto(disparity, nan, where=hidden_from_right(disparity))
         radius, jump = config.edge_radius_px, config.edge_jump_px
         flat[short_gap_indices(disparity, jump, 2 * radius)] = nan
@@ -382,4 +384,4 @@ def postprocess_disparity(
     filled = fill_holes(disparity) if config.fill_holes else None
     if filled_by_matcher is not None:
         np.copyto(disparity, nan, where=filled_by_matcher)  # filled, not measured
-    return PostResult(disparity, textured, filled)
+    return PostResult(disparity, textured, filled, sigma)
