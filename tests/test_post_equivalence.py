@@ -18,7 +18,12 @@ import pytest
 from avoidd.config import NearFieldConfig, PostprocessConfig, SgbmConfig
 from avoidd.sources.scene import Box, Pole, Scene
 from avoidd.types import RectifiedRig
-from avoidd.vision.edges import fattened_pixels, hidden_from_right, short_occlusion_gaps
+from avoidd.vision.edges import (
+    ambiguous_left_edges,
+    fattened_pixels,
+    hidden_from_right,
+    short_occlusion_gaps,
+)
 from avoidd.vision.fixed import FIXED_INF, to_sixteenths
 from avoidd.vision.matchers import SgbmMatcher
 from avoidd.vision.matchers.border import crop_padded, pad_left, run_opencv_matcher
@@ -88,6 +93,58 @@ def _reference_fattened(
     unsupported = near_cost + margin >= far_cost
     out = np.zeros(valid.shape, dtype=np.bool_)
     out[rows[unsupported], columns[unsupported]] = True
+    return out
+
+
+def _mask(shape: tuple[int, ...], flat: npt.NDArray[Any]) -> npt.NDArray[np.bool_]:
+    out = np.zeros(shape, dtype=np.bool_)
+    out.ravel()[flat] = True
+    return out
+
+
+def _reference_left_edges(
+    left: npt.NDArray[Any],
+    right: npt.NDArray[Any],
+    disparity_px: npt.NDArray[Any],
+    radius_px: int,
+    jump_px: float,
+    noise_sigma: float,
+    margin_sigmas: float = 3.0,
+) -> npt.NDArray[np.bool_]:
+    """Pixel by pixel: walk each row's runs, check the first ``radius_px`` pixels of each run
+    that starts out of nothing or with a step up."""
+    height, width = disparity_px.shape
+    left_mean = cv2.blur(left, (1, 5)).astype(np.float32)
+    right_mean = cv2.blur(right, (1, 5)).astype(np.float32)
+    jump = np.float32(jump_px)
+    margin = np.float32(margin_sigmas * noise_sigma / np.sqrt(5))
+    out = np.zeros((height, width), dtype=np.bool_)
+
+    def right_at(row: int, x: np.float32) -> np.float32:
+        x = np.float32(min(max(x, np.float32(0.0)), np.float32(width - 1.001)))
+        x0 = int(x)
+        a = np.float32(x - np.float32(x0))
+        return np.float32((np.float32(1.0) - a) * right_mean[row, x0] + a * right_mean[row, x0 + 1])
+
+    for row in range(height):
+        d = disparity_px[row].astype(np.float32)
+        start, rising = -1, False
+        for u in range(width):
+            if np.isnan(d[u]):
+                start = -1
+                continue
+            before = d[u - 1] if u > 0 else np.float32(np.nan)
+            if np.isnan(before) or not abs(d[u] - before) < jump:
+                start, rising = u, not (d[u] - before <= -jump)
+            if not rising or u - start >= radius_px:
+                continue
+            beside = np.float32(start) - d[u] - jump
+            if beside < 0:
+                continue
+            own = left_mean[row, u]
+            near_cost = abs(own - right_at(row, np.float32(u) - d[u]))
+            background_cost = abs(own - right_at(row, beside))
+            out[row, u] = near_cost + margin >= background_cost
     return out
 
 
@@ -204,6 +261,11 @@ def _checks(left: Any, right: Any, disparity: Any, radius: int, jump: float) -> 
     np.testing.assert_array_equal(
         fattened, _reference_fattened(left, right, d, radius, jump, sigma)
     )
+    d[fattened] = np.nan
+    np.testing.assert_array_equal(
+        _mask(d.shape, ambiguous_left_edges(left, right, d, radius, jump, sigma)),
+        _reference_left_edges(left, right, d, radius, jump, sigma),
+    )
     # And each check alone on the map as it came (not cleaned by the ones before).
     np.testing.assert_array_equal(
         short_occlusion_gaps(disparity, jump, 2 * radius),
@@ -319,6 +381,10 @@ def _reference_block(
             left, right, disparity, post.edge_radius_px, post.edge_jump_px, _reference_sigma(left)
         )
         disparity[fattened] = np.nan
+        ambiguous = _reference_left_edges(
+            left, right, disparity, post.edge_radius_px, post.edge_jump_px, _reference_sigma(left)
+        )
+        disparity[ambiguous] = np.nan
     filled_display = fill_holes(disparity) if post.fill_holes else None
     if filled_by_matcher is not None:
         disparity[filled_by_matcher] = np.nan

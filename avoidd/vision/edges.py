@@ -143,22 +143,118 @@ def fattened_indices(
     size = (1, _COLUMN_PX)
     left_mean = cv2.blur(left, size, dst=_scratch("left_mean", left.shape, np.uint8)).ravel()
     right_mean = cv2.blur(right, size, dst=_scratch("right_mean", right.shape, np.uint8)).ravel()
-
-    def right_at(x: FloatArray) -> FloatArray:
-        """The right view's column mean at (row, x), linearly between columns."""
-        x = np.clip(x, np.float32(0.0), np.float32(width - 1.001))
-        x0 = np.trunc(x)
-        a = x - x0  # exact in float32: the fractional part has no more bits than x
-        at = rows_start + x0.astype(np.intp)
-        r0 = right_mean[at].astype(np.float32)
-        r1 = right_mean[at + 1].astype(np.float32)
-        return np.asarray((1.0 - a) * r0 + a * r1)
-
     own = left_mean[flat].astype(np.float32)
-    near_cost = np.abs(own - right_at(columns - d))
-    far_cost = np.abs(own - right_at(columns - far))
+    near_cost = np.abs(own - _row_sample(right_mean, rows_start, columns - d, width))
+    far_cost = np.abs(own - _row_sample(right_mean, rows_start, columns - far, width))
     margin = np.float32(margin_sigmas * noise_sigma / np.sqrt(_COLUMN_PX))
     return np.asarray(flat[near_cost + margin >= far_cost], dtype=np.intp)
+
+
+def ambiguous_left_edges(
+    left: Image,
+    right: Image,
+    disparity_px: FloatArray,
+    radius_px: int,
+    jump_px: float,
+    noise_sigma: float,
+    margin_sigmas: float = 3.0,
+) -> IndexArray:
+    """Pixels at the start of a nearer run whose grey level the background beside it explains.
+
+    Left of a silhouette the left view shows a strip of background the right camera cannot
+    see (as wide as the step in disparity). A matcher often gives that strip the nearer
+    surface's disparity; :func:`fattened_indices` then cannot catch it, since the far side's
+    disparity lands on the nearer surface in the right view (that is what hidden means) and
+    matches badly there. A nearer disparity does not: it lands left of the surface's image in
+    the right view, on the background beside the silhouette. Each measured pixel within
+    ``radius_px`` of the start of its run (a run starts after an unmeasured pixel or a step up
+    of at least ``jump_px``) is compared with the right view at its own disparity and at the
+    spot a pixel's width of the jump left of where the run's start lands. A surface pixel
+    differs from the background there; a pixel of background (sky, weakly textured ground)
+    matches it as well, says nothing for the nearer disparity, and is returned.
+
+    Args:
+        left: Rectified left grey view (the disparity's reference).
+        right: Rectified right grey view.
+        disparity_px: Disparity of the left view (NaN invalid).
+        radius_px: How far from a run's start a pixel is checked.
+        jump_px: Smallest step up (from the left) that starts a run, and how far left of the
+            run's start the background is read.
+        noise_sigma: Sensor noise of the views in grey levels.
+        margin_sigmas: How much better, in noise units of the column mean, the pixel must
+            match at its own disparity than the background does. Three: a pixel of
+            featureless background passes by chance about 2 % of the time (8 % at two, and
+            those survivors, a few dozen in a strip, still made a cluster beside a pole).
+
+    Returns:
+        Flat (row-major) indices of the pixels to drop, ascending.
+    """
+    width = disparity_px.shape[1]
+    disparity = np.ascontiguousarray(disparity_px, dtype=np.float32)
+    shape = disparity.shape
+    # Neighbours along a row that belong to one run: both measured, less than a jump apart.
+    valid = cv2.compare(disparity, disparity, cv2.CMP_EQ, dst=_scratch("valid", shape, np.uint8))
+    step = _scratch("left_step", shape, np.float32)
+    step[:, 0] = np.nan
+    cv2.subtract(disparity[:, 1:], disparity[:, :-1], dst=step[:, 1:])
+    jump = np.float32(jump_px)
+    with np.errstate(invalid="ignore"):
+        joined = np.less(np.abs(step), jump, out=_scratch("joined", shape, np.bool_))
+    # Padded with an unjoined column on the right, each row's runs start where a measured
+    # pixel is not joined to its left neighbour and end where it is not joined to its right.
+    begins = np.flatnonzero((valid != 0) & ~joined)
+    if begins.size == 0:
+        return begins
+    ends_mask = _scratch("ends", shape, np.bool_)
+    ends_mask[:, -1] = True
+    np.logical_not(joined[:, 1:], out=ends_mask[:, :-1])
+    ends_mask &= valid != 0
+    ends = np.flatnonzero(ends_mask)
+    # A run starts at a silhouette's left side when it comes out of nothing (or the row's
+    # start) or steps up; a step down is the right side of something nearer.
+    flat_step = step.ravel()[begins]
+    with np.errstate(invalid="ignore"):
+        rising = ~(flat_step <= -jump)
+    first, length = begins[rising], np.minimum(ends[rising] - begins[rising] + 1, radius_px)
+    total = int(length.sum())
+    if total == 0:
+        return np.zeros(0, dtype=np.intp)
+    offsets = np.arange(total, dtype=np.intp) - np.repeat(np.cumsum(length) - length, length)
+    flat = np.repeat(first, length) + offsets
+    first = np.repeat(first, length)
+    d = disparity.ravel()[flat]
+    rows_start = flat - flat % width
+    columns_f = (flat - rows_start).astype(np.float32)
+    beside = (first - rows_start).astype(np.float32) - d - np.float32(jump_px)
+    inside = beside >= 0.0  # the background's spot is in the right view
+    flat, d, rows_start, columns_f, beside = (
+        flat[inside],
+        d[inside],
+        rows_start[inside],
+        columns_f[inside],
+        beside[inside],
+    )
+    size = (1, _COLUMN_PX)
+    left_mean = cv2.blur(left, size, dst=_scratch("left_mean", left.shape, np.uint8)).ravel()
+    right_mean = cv2.blur(right, size, dst=_scratch("right_mean", right.shape, np.uint8)).ravel()
+    own = left_mean[flat].astype(np.float32)
+    near_cost = np.abs(own - _row_sample(right_mean, rows_start, columns_f - d, width))
+    background_cost = np.abs(own - _row_sample(right_mean, rows_start, beside, width))
+    margin = np.float32(margin_sigmas * noise_sigma / np.sqrt(_COLUMN_PX))
+    return np.asarray(flat[near_cost + margin >= background_cost], dtype=np.intp)
+
+
+def _row_sample(
+    values: npt.NDArray[Any], rows_start: IndexArray, x: FloatArray, width: int
+) -> FloatArray:
+    """A flat image's values at (row, x), linearly between columns (x clipped to the row)."""
+    x = np.clip(x, np.float32(0.0), np.float32(width - 1.001))
+    x0 = np.trunc(x)
+    a = x - x0  # exact in float32: the fractional part has no more bits than x
+    at = rows_start + x0.astype(np.intp)
+    v0 = values[at].astype(np.float32)
+    v1 = values[at + 1].astype(np.float32)
+    return np.asarray((1.0 - a) * v0 + a * v1)
 
 
 def hidden_from_right(disparity_px: FloatArray) -> BoolArray:

@@ -16,7 +16,12 @@ import numpy.typing as npt
 
 from avoidd.config import PostprocessConfig
 from avoidd.types import BoolArray, FloatArray, Image
-from avoidd.vision.edges import fattened_indices, hidden_from_right, short_gap_indices
+from avoidd.vision.edges import (
+    ambiguous_left_edges,
+    fattened_indices,
+    hidden_from_right,
+    short_gap_indices,
+)
 from avoidd.vision.fixed import FIXED_INF, FIXED_LIMIT, to_sixteenths
 from avoidd.vision.scratch import scratch
 
@@ -380,6 +385,8 @@ def postprocess_disparity(
         flat[short_gap_indices(disparity, jump, 2 * radius)] = nan
         # Background that took the silhouette's disparity.
         flat[fattened_indices(left, right, disparity, radius, jump, sigma)] = nan
+        # Background left of a silhouette that the right camera cannot see.
+        flat[ambiguous_left_edges(left, right, disparity, radius, jump, sigma)] = nan
     # The display map is filled before anything is blanked; the map obstacles see is not.
     filled = fill_holes(disparity) if config.fill_holes else None
     if filled_by_matcher is not None:
