@@ -112,7 +112,8 @@ def _reference_left_edges(
     margin_sigmas: float = 3.0,
 ) -> npt.NDArray[np.bool_]:
     """Pixel by pixel: walk each row's runs, check the first ``radius_px`` pixels of each run
-    that starts out of nothing or with a step up."""
+    that starts out of nothing or with a step up, after nothing measured or something a jump
+    farther."""
     height, width = disparity_px.shape
     left_mean = cv2.blur(left, (1, 5)).astype(np.float32)
     right_mean = cv2.blur(right, (1, 5)).astype(np.float32)
@@ -136,6 +137,11 @@ def _reference_left_edges(
             before = d[u - 1] if u > 0 else np.float32(np.nan)
             if np.isnan(before) or not abs(d[u] - before) < jump:
                 start, rising = u, not (d[u] - before <= -jump)
+                # Nothing measured within twice the radius to its left, or something a
+                # jump farther: a silhouette.
+                earlier = d[max(u - 2 * radius_px, 0) : u]
+                earlier = earlier[~np.isnan(earlier)]
+                rising &= earlier.size == 0 or bool(earlier.min() <= d[u] - jump)
             if not rising or u - start >= radius_px:
                 continue
             beside = np.float32(start) - d[u] - jump

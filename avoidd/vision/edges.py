@@ -168,8 +168,10 @@ def ambiguous_left_edges(
     matches badly there. A nearer disparity does not: it lands left of the surface's image in
     the right view, on the background beside the silhouette. Each measured pixel within
     ``radius_px`` of the start of its run (a run starts after an unmeasured pixel or a step up
-    of at least ``jump_px``) is compared with the right view at its own disparity and at the
-    spot a pixel's width of the jump left of where the run's start lands. A surface pixel
+    of at least ``jump_px``, with nothing measured within twice the radius before it or
+    something a jump farther: a run of ground after a few unmeasured pixels, with ground of
+    its disparity before them, is no silhouette) is compared with the right view at its own
+    disparity and at the spot ``jump_px`` left of where the run's start lands. A surface pixel
     differs from the background there; a pixel of background (sky, weakly textured ground)
     matches it as well, says nothing for the nearer disparity, and is returned.
 
@@ -211,10 +213,30 @@ def ambiguous_left_edges(
     ends_mask &= valid != 0
     ends = np.flatnonzero(ends_mask)
     # A run starts at a silhouette's left side when it comes out of nothing (or the row's
-    # start) or steps up; a step down is the right side of something nearer.
+    # start) or steps up; a step down is the right side of something nearer. And only when
+    # nothing is measured within twice the radius to its left (sky) or something a jump
+    # farther is: a run of ground that starts after a few unmeasured pixels, with ground of
+    # its own disparity before them, is no silhouette.
     flat_step = step.ravel()[begins]
+    measured = _scratch("left_measured", shape, np.float32)
+    np.copyto(measured, disparity)
+    cv2.patchNaNs(measured, np.inf)
+    reach = 2 * radius_px
+    # Row minima over [u - reach + 1, u]; read at u - 1 for a run starting at u.
+    lowest_left = cv2.erode(
+        measured,
+        np.ones((1, reach), dtype=np.uint8),
+        dst=_scratch("lowest_left", shape, np.float32),
+        anchor=(reach - 1, 0),
+        borderType=cv2.BORDER_CONSTANT,
+        borderValue=np.inf,
+    ).ravel()
+    at_row_start = begins % width == 0
+    before_start = np.where(at_row_start, np.float32(np.inf), lowest_left[begins - 1])
+    d_start = disparity.ravel()[begins]
     with np.errstate(invalid="ignore"):
         rising = ~(flat_step <= -jump)
+        rising &= np.isinf(before_start) | (before_start <= d_start - jump)
     first, length = begins[rising], np.minimum(ends[rising] - begins[rising] + 1, radius_px)
     total = int(length.sum())
     if total == 0:
