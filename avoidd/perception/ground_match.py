@@ -28,7 +28,7 @@ from avoidd.perception.workspace import Workspace
 from avoidd.types import BoolArray, FloatArray, Image
 
 WINDOW_PX = 5
-"""Side of the square window the two hypotheses' matching costs are averaged over."""
+"""Side of the square window the two hypotheses' matching costs are summed over."""
 
 _MIN_GAP_PX = 1.0
 """The ground's disparity must lie at least this far below the measured one to be tested."""
@@ -70,8 +70,9 @@ def explained_by_ground(
             them are checked (the matcher's smoothing error; farther from the ground, a
             chance match of weak texture at the ground's disparity would drop real obstacle
             points).
-        margin_sigmas: How much worse, in noise units of the window mean, the ground's match
-            may be and still explain the pixel.
+        margin_sigmas: How much worse, in standard deviations of the window's summed
+            difference under sensor noise alone, the ground's match may be and still explain
+            the pixel.
 
     Returns:
         (H, W) mask of the candidates to drop (a workspace array: valid until the next frame).
