@@ -152,7 +152,7 @@ class HeadPipeline:
         self.rectified_from_raw = calibration.rectified_from_raw
         self._matcher = create_matcher(head.matcher)
         self.near_field = (
-            NearField(head.matcher.num_disparities, head.near_field)
+            NearField(head.matcher.num_disparities, head.near_field, head.postprocess)
             if head.near_field.enabled
             else None
         )

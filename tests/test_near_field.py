@@ -7,7 +7,7 @@ import math
 import numpy as np
 import pytest
 
-from avoidd.config import NearFieldConfig
+from avoidd.config import NearFieldConfig, PostprocessConfig
 from avoidd.evaluation.near import format_near, near_suite, run_near_case
 from avoidd.vision.nearfield import NearField, unseen_behind
 
@@ -39,6 +39,41 @@ def test_merge_takes_the_coarse_pass_only_beyond_the_main_range() -> None:
     # and left of the largest near disparity in every row.
     assert np.isnan(merged[1, 430:550]).all() and np.isnan(merged[0, :252]).all()
     assert np.all(main == 10.0)  # the input is not modified
+
+
+class _GivenCoarse(NearField):
+    """The real merge on a coarse map the test chooses (the coarse matcher's guesses)."""
+
+    def __init__(self, coarse: np.ndarray) -> None:
+        super().__init__(64, NearFieldConfig(scale=4, num_disparities=64), PostprocessConfig())
+        self._given = coarse
+
+    def coarse(self, left: np.ndarray, right: np.ndarray) -> np.ndarray:
+        return self._given.copy()
+
+
+def test_coarse_guesses_in_featureless_sky_or_alone_do_not_blank_the_left_band() -> None:
+    # A textured scene under 40 rows of plain sky; the main matcher measured it all at 10.
+    # A few rows of open sky that the coarse pass read as near (seen in a rendered scene:
+    # rows 0-3 across 450 columns) blanked every row left of their disparity, and with it a
+    # 5 cm pole at 5 m. Neither sky nor a lone coarse pixel (4 x 4 px) is a surface; a
+    # textured patch two coarse pixels across is, and still blanks the band.
+    rng = np.random.default_rng(4)
+    height, width = 120, 400
+    left = rng.integers(0, 255, (height, width)).astype(np.uint8)
+    left[:40] = 190
+    right = left.copy()
+    main = np.full((height, width), 10.0, dtype=np.float32)
+    coarse = np.full((height, width), 10.0, dtype=np.float32)
+    coarse[0:4, 150:380] = 160.0  # the sky
+    coarse[60:64, 300:304] = 160.0  # one coarse pixel of texture
+    result = _GivenCoarse(coarse).apply(left, right, main)
+    assert result.near_pixels == 0 and result.blanked_pixels == 0
+    assert np.array_equal(result.disparity, main)
+    coarse[80:88, 300:308] = 160.0  # a patch two coarse pixels across
+    result = _GivenCoarse(coarse).apply(left, right, main)
+    assert result.near_pixels == 64
+    assert np.isnan(result.disparity[50, :150]).all()
 
 
 def test_what_the_right_camera_cannot_see_is_dropped() -> None:

@@ -8,6 +8,13 @@ Where it sees something beyond the main range, its disparity replaces the main o
 where it is at the end of its own range the object may be nearer still, so it is put at the
 coarse pass's limit: read at the rig's minimum range, never farther.
 
+The coarse pass guesses in featureless places as the main matcher does (a few rows of open
+sky read nearer than the main range in about one rendered scene in twenty), and a near guess
+there would blank the whole left band of the image (below). Its candidates therefore pass the
+same texture test the main map does (:func:`avoidd.vision.postprocess.texture_gate`), only in
+frames where it found any: a featureless pixel is dropped from the merged map anyway. And a
+candidate must belong to a patch at least two coarse pixels across.
+
 Two more things follow from the geometry (:func:`unseen_behind`). A near surface hides from
 the right camera what lies just left of it in the left view, and the main matcher, whose own
 consistency check cannot work beyond its range, fills that shadow with guesses (the
@@ -24,10 +31,11 @@ from dataclasses import dataclass
 import cv2
 import numpy as np
 
-from avoidd.config import NearFieldConfig, SgbmConfig
+from avoidd.config import NearFieldConfig, PostprocessConfig, SgbmConfig
 from avoidd.types import BoolArray, FloatArray, Image, RectifiedRig
 from avoidd.vision.edges import row_suffix_min
 from avoidd.vision.matchers.sgbm import SgbmMatcher
+from avoidd.vision.postprocess import texture_gate
 
 
 @dataclass(frozen=True)
@@ -70,10 +78,18 @@ class NearField:
     Args:
         main_disparities: Search range ``D`` of the head's main matcher.
         config: Scale, range and block size of the coarse pass.
+        texture: The head's ``postprocess`` section, whose texture test the coarse pass's
+            candidates must pass (none: every candidate is kept).
     """
 
-    def __init__(self, main_disparities: int, config: NearFieldConfig) -> None:
+    def __init__(
+        self,
+        main_disparities: int,
+        config: NearFieldConfig,
+        texture: PostprocessConfig | None = None,
+    ) -> None:
         self.main_disparities = main_disparities
+        self._texture = texture
         self.scale = config.scale
         self.num_disparities = config.num_disparities
         self._coarse = SgbmMatcher(
@@ -130,7 +146,25 @@ class NearField:
 
     def apply(self, left: Image, right: Image, main: FloatArray) -> NearFieldResult:
         """Run the coarse pass on a rectified grey pair and merge it into ``main``."""
-        return self.merge(main, self.coarse(left, right))
+        coarse = self.coarse(left, right)
+        threshold = np.float32(self.main_disparities - 1 - self.scale)
+        with np.errstate(invalid="ignore"):
+            candidates = coarse >= threshold
+        if not candidates.any():
+            return self.merge(main, coarse)
+        texture = self._texture
+        found = candidates
+        if texture is not None and texture.min_texture_snr > 0:
+            gate = texture_gate(left, texture.texture_window_px, texture.min_texture_snr)
+            candidates = candidates & gate
+        # At least two coarse pixels each way: a lone coarse pixel is a guess, not a surface
+        # (at the near range an object of the smallest size covers dozens).
+        side = 2 * self.scale - 1  # odd: the opening keeps a patch in place
+        kept = cv2.morphologyEx(
+            candidates.view(np.uint8), cv2.MORPH_OPEN, np.ones((side, side), np.uint8)
+        )
+        coarse[found & (kept == 0)] = np.nan
+        return self.merge(main, coarse)
 
 
 def unseen_behind(disparity: FloatArray, near: BoolArray) -> BoolArray:
