@@ -129,6 +129,32 @@ def test_mount_yaw_90_fills_bins_around_18() -> None:
     assert np.isnan(distance[0]) and np.isnan(distance[36])
 
 
+def test_a_thin_pole_split_by_a_bin_boundary_is_read_in_both_bins() -> None:
+    # A 5 cm pole at 5 m (4 px) across the boundary of bins 0 and 1 (2.5 deg, between
+    # columns 336 and 337): one column in bin 0, three in bin 1. Each part alone is narrower
+    # than the smallest obstacle, so each bin alone would call it a sliver of something the
+    # other reports, and neither did: the pole read unknown in both.
+    boundary = column_at(2.5)
+    bearings = column_bearings_deg(RIG, Mount())[boundary - 1 : boundary + 1]
+    assert bin_of_bearing(np.asarray(bearings)).tolist() == [0, 1]
+    depth = far_scene()
+    depth[:, boundary - 1 : boundary + 3] = 5.0
+    distance = scan_of(depth)
+    assert distance[0] == pytest.approx(5.0, rel=0.02)
+    assert distance[1] == pytest.approx(5.0, rel=0.02)
+    # A sliver beside a wide body stays unknown: the body's bin reports it.
+    depth = far_scene()
+    depth[:, boundary - 1 : boundary + 40] = 5.0
+    distance = scan_of(depth)
+    assert np.isnan(distance[0]) and distance[1] == pytest.approx(5.0, rel=0.02)
+    # Two slivers that do not meet at the boundary are no object split by it.
+    depth = far_scene()
+    depth[:, boundary - 2 : boundary - 1] = 5.0
+    depth[:, boundary + 4 : boundary + 7] = 5.0
+    distance = scan_of(depth)
+    assert np.isnan(distance[0]) and np.isnan(distance[1])
+
+
 def test_mount_position_shifts_the_range() -> None:
     depth = far_scene()
     put_obstacle(depth, 0.0, 4.0, 40)

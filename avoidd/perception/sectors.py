@@ -140,22 +140,50 @@ def _narrow_cells(
     most_m = (high - low + 1) / 5 / 0.9 * metres_per_turn
     narrow: npt.NDArray[np.bool_] = np.asarray(found & (most_m < needed_m), dtype=np.bool_)
     undecided = found & ~narrow & (least_m < needed_m)
-    if not undecided.any():
-        return narrow
-    # The undecided bins, in 64ths of a degree.
-    member &= undecided[degree_bin][:, None]
-    count = cells.key.size
     ws = workspace or Workspace()
-    chosen = np.take(cells.table(member, False), cells.key, out=ws.array("member", count, np.bool_))
+    if undecided.any():  # the undecided bins, in 64ths of a degree
+        per_fine = _fine_counts(cells, member & undecided[degree_bin][:, None], ws)
+        low, high = _percentile_cells(per_fine)
+        span_m = (high - low) / FINE_PER_BIN / 0.9 * metres_per_turn
+        narrow[undecided] = span_m[undecided] < needed_m[undecided]
+    # An object just wider than the smallest one, split by a bin boundary, leaves a narrow
+    # cluster on each side: together they are the object, and both bins hold part of it. A
+    # narrow cluster beside a wide one stays narrow (a strip of background beside a
+    # silhouette, or a sliver of a body the next bin reports).
+    after = np.roll(np.arange(SECTOR_COUNT), -1)
+    pair = narrow & narrow[after] & (np.abs(near - near[after]) <= window_px)
+    if not pair.any():
+        return narrow
+    pair_bins = pair | pair[np.roll(np.arange(SECTOR_COUNT), 1)]  # each pair's both bins
+    per_fine = _fine_counts(cells, member & pair_bins[degree_bin][:, None], ws)
+    joined = np.concatenate((per_fine, per_fine[after]), axis=1)  # bin b, then b + 1
+    low, high = _percentile_cells(joined)
+    own_low, own_high = _percentile_cells(per_fine)
+    # The two clusters meet at the boundary: at most two pixels between them.
+    gap_cells = (FINE_PER_BIN - own_high) + own_low[after]
+    touching = gap_cells <= math.degrees(2.0 / fx) * FINE_PER_BIN / 5.0
+    pair_m = np.minimum(range_m, range_m[after])
+    pair_needed_m = min_size_m - pair_m / fx
+    span_m = (high - low) / FINE_PER_BIN / 0.9 * (2.0 * math.pi / SECTOR_COUNT) * pair_m
+    whole = pair & touching & (span_m >= pair_needed_m)
+    narrow[whole] = False
+    narrow[after[whole]] = False
+    return narrow
+
+
+def _fine_counts(
+    cells: PointCells, member: npt.NDArray[np.bool_], workspace: Workspace
+) -> IntArray:
+    """(72, FINE_PER_BIN) counts of the member cells' points in 64ths of a degree; row i: bin i."""
+    count = cells.key.size
+    chosen = np.take(
+        cells.table(member, False), cells.key, out=workspace.array("member", count, np.bool_)
+    )
     fine = cells.turns[np.flatnonzero(chosen)].astype(np.int64)
     per_fine = np.bincount(fine, minlength=(SECTOR_COUNT + 1) * FINE_PER_BIN)
     per_fine = per_fine[: (SECTOR_COUNT + 1) * FINE_PER_BIN].reshape(SECTOR_COUNT + 1, -1)
     per_fine[0] += per_fine[SECTOR_COUNT]  # both hold bin 36 (+-180 degrees)
-    per_fine = np.roll(per_fine[:SECTOR_COUNT], 36, axis=0)  # row i: bin i
-    low, high = _percentile_cells(per_fine)
-    span_m = (high - low) / FINE_PER_BIN / 0.9 * metres_per_turn
-    narrow[undecided] = span_m[undecided] < needed_m[undecided]
-    return narrow
+    return np.roll(per_fine[:SECTOR_COUNT], 36, axis=0)
 
 
 def _percentile_cells(counts: IntArray) -> tuple[IntArray, IntArray]:
