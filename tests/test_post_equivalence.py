@@ -89,11 +89,30 @@ def _reference_fattened(
     at = columns.astype(np.float32)
     near_cost = np.abs(own - right_at(at - d))
     far_cost = np.abs(own - right_at(at - far))
+    # Unmeasured far side: the best match over disparities 0..2 (the right view's columns
+    # u - 2 .. u, clipped to the row, and every value between them).
+    unseen = ~(lowest[checked] <= d - jump) & (d >= jump + np.float32(2.0))
+    span = np.stack([right_mean[rows, np.maximum(columns - k, 0)] for k in range(3)])
+    outside = np.maximum(span.min(axis=0) - own, own - span.max(axis=0))
+    far_cost = np.where(unseen, np.minimum(far_cost, np.maximum(outside, 0.0)), far_cost)
     margin = np.float32(margin_sigmas * noise_sigma / np.sqrt(5))
-    unsupported = near_cost + margin >= far_cost
+    keep = _reference_vote(valid.shape, rows, columns, near_cost + margin < far_cost)
     out = np.zeros(valid.shape, dtype=np.bool_)
-    out[rows[unsupported], columns[unsupported]] = True
+    out[rows[~keep], columns[~keep]] = True
     return out
+
+
+def _reference_vote(
+    shape: tuple[int, ...], rows: npt.NDArray[Any], columns: npt.NDArray[Any], keep: Any
+) -> npt.NDArray[np.bool_]:
+    """Each checked pixel kept when, of the checked pixels 6 rows up and down its column,
+    more keep than not (running sums down each column)."""
+    votes = np.zeros((shape[0] + 1, shape[1]), dtype=np.int64)
+    votes[rows + 1, columns] = np.where(keep, 1, -1)
+    running = np.cumsum(votes, axis=0)  # running[r + 1]: rows 0..r
+    below = np.minimum(rows + 6, shape[0] - 1) + 1
+    above = np.maximum(rows - 6, 0)
+    return np.asarray(running[below, columns] - running[above, columns] > 0)
 
 
 def _mask(shape: tuple[int, ...], flat: npt.NDArray[Any]) -> npt.NDArray[np.bool_]:
@@ -119,7 +138,9 @@ def _reference_left_edges(
     right_mean = cv2.blur(right, (1, 5)).astype(np.float32)
     jump = np.float32(jump_px)
     margin = np.float32(margin_sigmas * noise_sigma / np.sqrt(5))
-    out = np.zeros((height, width), dtype=np.bool_)
+    checked_rows: list[int] = []
+    checked_columns: list[int] = []
+    kept: list[bool] = []
 
     def right_at(row: int, x: np.float32) -> np.float32:
         x = np.float32(min(max(x, np.float32(0.0)), np.float32(width - 1.001)))
@@ -150,7 +171,14 @@ def _reference_left_edges(
             own = left_mean[row, u]
             near_cost = abs(own - right_at(row, np.float32(u) - d[u]))
             background_cost = abs(own - right_at(row, beside))
-            out[row, u] = near_cost + margin >= background_cost
+            checked_rows.append(row)
+            checked_columns.append(u)
+            kept.append(bool(near_cost + margin < background_cost))
+    rows, columns = np.array(checked_rows, dtype=np.int64), np.array(checked_columns, np.int64)
+    out = np.zeros((height, width), dtype=np.bool_)
+    if rows.size:
+        keep = _reference_vote((height, width), rows, columns, np.array(kept))
+        out[rows[~keep], columns[~keep]] = True
     return out
 
 

@@ -18,7 +18,7 @@ pixels, since the far side's disparity lands on different texture for every one 
 from __future__ import annotations
 
 import math
-from typing import Any
+from typing import Any, NamedTuple
 
 import cv2
 import numpy as np
@@ -33,6 +33,46 @@ IndexArray = npt.NDArray[np.intp]
 
 _COLUMN_PX = 5
 """Height of the column a pixel's grey level is averaged over (noise down, edge kept)."""
+
+_UNSEEN_FAR_PX = 2
+"""Where nothing is measured beyond a silhouette, the background is taken to lie between
+infinitely far and this disparity (whole pixels; see :func:`fattened_indices`)."""
+
+_VOTE_ROWS = 6
+"""Rows each way whose checked pixels vote on a pixel's verdict (see :func:`_column_vote`)."""
+
+
+class ColumnMeans(NamedTuple):
+    """Both views' grey levels averaged down a short column (:func:`column_means`), flat."""
+
+    left: npt.NDArray[np.uint8]
+    right: npt.NDArray[np.uint8]
+
+
+def column_means(
+    left: Image, right: Image, left_out: Image | None = None, right_out: Image | None = None
+) -> ColumnMeans:
+    """Each view's grey levels averaged down ``_COLUMN_PX`` rows: noise down, an edge kept.
+
+    The depth-edge checks compare these. Computed once per frame, they can be handed to
+    each check.
+
+    Args:
+        left: Rectified left grey view.
+        right: Rectified right grey view.
+        left_out: Where to write the left means (same shape and type as ``left``), if given.
+        right_out: Likewise for the right.
+
+    Returns:
+        Both means, flattened (views of the arrays written).
+    """
+    size = (1, _COLUMN_PX)
+    left_mean = cv2.blur(left, size, dst=left_out)
+    right_mean = cv2.blur(right, size, dst=right_out)
+    return ColumnMeans(
+        np.asarray(left_mean, dtype=np.uint8).ravel(),
+        np.asarray(right_mean, dtype=np.uint8).ravel(),
+    )
 
 
 def fattened_pixels(
@@ -75,8 +115,12 @@ def fattened_indices(
     jump_px: float,
     noise_sigma: float,
     margin_sigmas: float = 2.0,
+    means: ColumnMeans | None = None,
 ) -> IndexArray:
-    """:func:`fattened_pixels` as flat (row-major) indices of the pixels to drop, ascending."""
+    """:func:`fattened_pixels` as flat (row-major) indices of the pixels to drop, ascending.
+
+    ``means``: the views' :func:`column_means`, when already computed for this frame.
+    """
     shape = disparity_px.shape
     width = shape[1]
     disparity = np.ascontiguousarray(disparity_px, dtype=np.float32)
@@ -134,20 +178,56 @@ def fattened_indices(
     if fixed is not None:
         low *= np.float32(1.0 / 16.0)  # exact: a candidate's own value bounds its minimum
     blank = all_measured.ravel()[flat] == 0
-    far = np.where(low <= d - jump, low, np.where(blank, np.float32(0.0), d))
+    measured_far = low <= d - jump
+    far = np.where(measured_far, low, np.where(blank, np.float32(0.0), d))
     checked = d - far >= jump
-    flat, d, far = flat[checked], d[checked], far[checked]
+    flat, d, far, unseen = flat[checked], d[checked], far[checked], ~measured_far[checked]
     rows_start = flat - flat % width  # flat index of each pixel's row start
     columns = (flat - rows_start).astype(np.float32)
     # Grey levels averaged down a short column (noise down, a vertical edge kept).
-    size = (1, _COLUMN_PX)
-    left_mean = cv2.blur(left, size, dst=_scratch("left_mean", left.shape, np.uint8)).ravel()
-    right_mean = cv2.blur(right, size, dst=_scratch("right_mean", right.shape, np.uint8)).ravel()
+    left_mean, right_mean = means or _own_means(left, right)
     own = left_mean[flat].astype(np.float32)
     near_cost = np.abs(own - _row_sample(right_mean, rows_start, columns - d, width))
     far_cost = np.abs(own - _row_sample(right_mean, rows_start, columns - far, width))
+    # An unmeasured far side is not always infinitely far: a tree line at 45 m is a pixel
+    # away. Its cost is the best over the far disparities from 0 to _UNSEEN_FAR_PX (where
+    # that lies a jump below the pixel's own, so never on the near surface itself). Between
+    # whole columns the right view is sampled linearly, so over that span it takes every
+    # value between the least and the largest of its columns there.
+    spots = np.flatnonzero(unseen & (d >= jump + np.float32(_UNSEEN_FAR_PX)))
+    at = flat[spots]
+    # Least and largest of the right view's columns u - _UNSEEN_FAR_PX .. u (clipped to the
+    # row), as whole-image row filters: cheaper than gathering each column per pixel.
+    span = np.ones((1, _UNSEEN_FAR_PX + 1), dtype=np.uint8)
+    right_2d = right_mean.reshape(shape)
+    lowest_right = (
+        cv2.erode(
+            right_2d,
+            span,
+            dst=_scratch("unseen_low", shape, np.uint8),
+            anchor=(_UNSEEN_FAR_PX, 0),
+            borderType=cv2.BORDER_REPLICATE,
+        )
+        .ravel()[at]
+        .astype(np.float32)
+    )
+    highest_right = (
+        cv2.dilate(
+            right_2d,
+            span,
+            dst=_scratch("unseen_high", shape, np.uint8),
+            anchor=(_UNSEEN_FAR_PX, 0),
+            borderType=cv2.BORDER_REPLICATE,
+        )
+        .ravel()[at]
+        .astype(np.float32)
+    )
+    mine = own[spots]
+    outside = np.maximum(lowest_right - mine, mine - highest_right)
+    far_cost[spots] = np.minimum(far_cost[spots], np.maximum(outside, np.float32(0.0)))
     margin = np.float32(margin_sigmas * noise_sigma / np.sqrt(_COLUMN_PX))
-    return np.asarray(flat[near_cost + margin >= far_cost], dtype=np.intp)
+    keep = near_cost + margin < far_cost
+    return np.asarray(flat[~_column_vote(shape, flat, keep, "fattened")], dtype=np.intp)
 
 
 def ambiguous_left_edges(
@@ -158,6 +238,7 @@ def ambiguous_left_edges(
     jump_px: float,
     noise_sigma: float,
     margin_sigmas: float = 3.0,
+    means: ColumnMeans | None = None,
 ) -> IndexArray:
     """Pixels at the start of a nearer run whose grey level the background beside it explains.
 
@@ -187,6 +268,7 @@ def ambiguous_left_edges(
             match at its own disparity than the background does. Three: a pixel of
             featureless background passes by chance about 2 % of the time (8 % at two, and
             those survivors, a few dozen in a strip, still made a cluster beside a pole).
+        means: The views' :func:`column_means`, when already computed for this frame.
 
     Returns:
         Flat (row-major) indices of the pixels to drop, ascending.
@@ -256,14 +338,56 @@ def ambiguous_left_edges(
         columns_f[inside],
         beside[inside],
     )
-    size = (1, _COLUMN_PX)
-    left_mean = cv2.blur(left, size, dst=_scratch("left_mean", left.shape, np.uint8)).ravel()
-    right_mean = cv2.blur(right, size, dst=_scratch("right_mean", right.shape, np.uint8)).ravel()
+    left_mean, right_mean = means or _own_means(left, right)
     own = left_mean[flat].astype(np.float32)
     near_cost = np.abs(own - _row_sample(right_mean, rows_start, columns_f - d, width))
     background_cost = np.abs(own - _row_sample(right_mean, rows_start, beside, width))
     margin = np.float32(margin_sigmas * noise_sigma / np.sqrt(_COLUMN_PX))
-    return np.asarray(flat[near_cost + margin >= background_cost], dtype=np.intp)
+    keep = near_cost + margin < background_cost
+    return np.asarray(flat[~_column_vote(shape, flat, keep, "left")], dtype=np.intp)
+
+
+def _own_means(left: Image, right: Image) -> ColumnMeans:
+    """:func:`column_means` into this module's scratch arrays (for one check's own use)."""
+    return column_means(
+        left,
+        right,
+        _scratch("left_mean", left.shape, np.uint8),
+        _scratch("right_mean", right.shape, np.uint8),
+    )
+
+
+def _column_vote(shape: tuple[int, ...], flat: IndexArray, keep: BoolArray, name: str) -> BoolArray:
+    """Each checked pixel's verdict by the majority of the checked pixels up and down its column.
+
+    One pixel's test compares grey levels a few noise units apart: against featureless
+    background (sky, smooth ground) about one pixel in ten passes by chance, and a strip of
+    such survivors a few hundred rows tall is enough for a cluster. The pixels above and below
+    in the same column lie on the same side of a (near vertical) silhouette, so the checked
+    pixels within ``_VOTE_ROWS`` rows each way vote, and ties drop (a pixel is kept only on
+    evidence). A surface pixel that failed by chance is kept by its neighbours just the same.
+
+    Args:
+        shape: (H, W) of the image the flat indices address.
+        flat: Flat indices of the checked pixels, ascending.
+        keep: Each one's own verdict (True: keeps its disparity).
+        name: The caller's name for its scratch array.
+
+    Returns:
+        The majority's verdict for each checked pixel.
+    """
+    votes = _scratch("votes." + name, shape, np.int16)
+    votes.fill(0)
+    votes.ravel()[flat] = np.where(keep, np.int16(1), np.int16(-1))
+    total = cv2.boxFilter(
+        votes,
+        cv2.CV_16S,
+        (1, 2 * _VOTE_ROWS + 1),
+        dst=_scratch("vote_total." + name, shape, np.int16),
+        normalize=False,
+        borderType=cv2.BORDER_CONSTANT,
+    )
+    return np.asarray(total.ravel()[flat] > 0)
 
 
 def _row_sample(

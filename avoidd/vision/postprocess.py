@@ -18,6 +18,7 @@ from avoidd.config import PostprocessConfig
 from avoidd.types import BoolArray, FloatArray, Image
 from avoidd.vision.edges import (
     ambiguous_left_edges,
+    column_means,
     fattened_indices,
     hidden_from_right,
     short_gap_indices,
@@ -383,10 +384,16 @@ def postprocess_disparity(
         np.copyto(disparity, nan, where=hidden_from_right(disparity))
         radius, jump = config.edge_radius_px, config.edge_jump_px
         flat[short_gap_indices(disparity, jump, 2 * radius)] = nan
-        # Background that took the silhouette's disparity.
-        flat[fattened_indices(left, right, disparity, radius, jump, sigma)] = nan
-        # Background left of a silhouette that the right camera cannot see.
-        flat[ambiguous_left_edges(left, right, disparity, radius, jump, sigma)] = nan
+        # Background that took the silhouette's disparity, then background left of a
+        # silhouette that the right camera cannot see (the runs as the first check left them).
+        means = column_means(
+            left,
+            right,
+            scratch("postprocess.left_mean", left.shape, np.uint8),
+            scratch("postprocess.right_mean", right.shape, np.uint8),
+        )
+        flat[fattened_indices(left, right, disparity, radius, jump, sigma, means=means)] = nan
+        flat[ambiguous_left_edges(left, right, disparity, radius, jump, sigma, means=means)] = nan
     # The display map is filled before anything is blanked; the map obstacles see is not.
     filled = fill_holes(disparity) if config.fill_holes else None
     if filled_by_matcher is not None:
