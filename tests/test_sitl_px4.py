@@ -281,13 +281,6 @@ async def _take_off(gcs: GroundStation) -> bool:
     return False
 
 
-async def _sticks(gcs: GroundStation) -> None:
-    """Neutral sticks at 20 Hz, as a pilot's joystick (Position mode needs manual control)."""
-    while True:
-        gcs.send(gcs.codec.build("MANUAL_CONTROL", 1, 0, 0, 500, 0, 0))
-        await asyncio.sleep(0.05)
-
-
 def _state(daemon: Daemon) -> str | None:
     return None if daemon.avoidance is None else daemon.avoidance.state
 
@@ -306,7 +299,7 @@ async def test_px4_leaves_offboard_when_avoidd_stops_and_a_restarted_avoidd_wait
     t0 = time.monotonic()
     sitl = Px4Sitl(px4_sitl_dir)
     gcs = await sitl.start()
-    sticks = asyncio.create_task(_sticks(gcs))
+    sticks = gcs.sticks()  # neutral, 20 Hz: Position mode needs a pilot's manual control
     sections = {
         "avoidance": {
             "enabled": True,
@@ -377,7 +370,7 @@ async def test_px4_leaves_offboard_when_avoidd_stops_and_a_restarted_avoidd_wait
         assert await wait_for(lambda: _state(daemon) in planning, 10.0), _state(daemon)
         flying_state = _state(daemon)
     finally:
-        sticks.cancel()
+        sticks.stop()
         if task is not None:
             daemon.stop()
             with contextlib.suppress(Exception):
@@ -388,8 +381,8 @@ async def test_px4_leaves_offboard_when_avoidd_stops_and_a_restarted_avoidd_wait
         f"{fallback_mode}; restarted avoidd silent 4 s, PX4 in {sorted(modes)}, speed "
         f"{speeds[0]:.2f} m/s at first, at most {max(speeds):.2f}, in the last second at most "
         f"{max(last_s):.2f} m/s; new goal: {prestreamed} prestream setpoints, PX4 in "
-        f"{sorted(prestream_modes)}; after OFFBOARD: {flying_state}; "
-        f"test {time.monotonic() - t0:.0f} s"
+        f"{sorted(prestream_modes)}; after OFFBOARD: {flying_state}; sticks' longest gap "
+        f"{sticks.longest_gap_s:.2f} s; test {time.monotonic() - t0:.0f} s"
     )
     assert fallback_mode == "POSCTL"
     assert fallback_s <= 3.0

@@ -96,6 +96,22 @@ class _UdpTransport:
         assert self._transport is not None
         return int(self._transport.get_extra_info("sockname")[1])
 
+    @property
+    def peer(self) -> Any:
+        """Where it sends (None until known)."""
+        return self._peer
+
+    def socket_fileno(self) -> int | None:
+        """The socket's file descriptor (None when closed).
+
+        A thread that must send on time whatever the event loop does can ``dup`` it and send
+        from the same address.
+        """
+        if self._transport is None:
+            return None
+        sock = self._transport.get_extra_info("socket")
+        return None if sock is None else int(sock.fileno())
+
     def datagram_received(self, data: bytes, addr: Any) -> None:
         if self._spec.kind == "udpin" and self._follow_sender:
             self._peer = addr

@@ -8,10 +8,15 @@ ask for the messages they watch. It speaks through avoidd's own codec and transp
 from __future__ import annotations
 
 import asyncio
+import contextlib
 import logging
+import os
+import socket
+import threading
 import time
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
+from typing import Any
 
 from pymavlink import mavutil
 
@@ -87,6 +92,36 @@ class GroundStation:
         """Pack and send one message."""
         if self.transport is not None:
             self.transport.send(self.codec.pack(message))
+
+    def sticks(self, rate_hz: float = 20.0, forward: int = 0) -> StickStream:
+        """Start a pilot's sticks: MANUAL_CONTROL at ``rate_hz`` from a thread of its own.
+
+        PX4 in Position mode needs manual control and fails safe (Hold) after
+        ``COM_RC_LOSS_T`` (0.5 s) without it. A task on the event loop missed that on a
+        loaded machine (the loop shares it with avoidd); a thread sending on a copy of the
+        link's UDP socket keeps its pace whatever the loop does. Only ``udpin`` and
+        ``udpout`` links can do that.
+
+        Args:
+            rate_hz: Messages a second.
+            forward: The pitch stick to start with (see :attr:`StickStream.forward`).
+
+        Raises:
+            LinkError: The link is not open, or not UDP.
+        """
+        transport = self.transport
+        fileno = getattr(transport, "socket_fileno", lambda: None)()
+        if transport is None or fileno is None:
+            raise LinkError(f"ground station {self.connection}: sticks need an open UDP link")
+        stream = StickStream(
+            socket.socket(fileno=os.dup(fileno)),
+            lambda: getattr(transport, "peer", None),
+            rate_hz,
+            self.target_system,
+        )
+        stream.forward = forward
+        stream.start()
+        return stream
 
     async def _heartbeat(self) -> None:
         while True:
@@ -267,3 +302,61 @@ class GroundStation:
         if beat is None:
             raise LinkError(f"ground station on {self.connection}: no heartbeat in {timeout_s} s")
         return beat
+
+
+class StickStream:
+    """MANUAL_CONTROL at a steady rate from a thread (see :meth:`GroundStation.sticks`).
+
+    Attributes:
+        forward: Pitch stick, -1000 (back) to 1000 (forward); read at every send.
+        target_system: The autopilot's system id; read at every send.
+        sent: Messages sent.
+        longest_gap_s: Longest time between two sends (a starved thread shows here).
+    """
+
+    def __init__(
+        self,
+        sock: socket.socket,
+        peer: Callable[[], tuple[Any, ...] | None],
+        rate_hz: float,
+        target_system: int,
+    ) -> None:
+        self.forward = 0
+        self.target_system = target_system
+        self.sent = 0
+        self.longest_gap_s = 0.0
+        self._socket = sock
+        self._peer = peer
+        self._period_s = 1.0 / rate_hz
+        self._codec = mav.Codec(GCS_SYSTEM_ID, GCS_COMPONENT_ID)
+        self._stop = threading.Event()
+        self._thread = threading.Thread(target=self._run, name="gcs-sticks", daemon=True)
+
+    def start(self) -> None:
+        """Start sending."""
+        self._thread.start()
+
+    def stop(self) -> None:
+        """Stop sending and close the socket copy."""
+        self._stop.set()
+        self._thread.join(5.0)
+        self._socket.close()
+
+    def _run(self) -> None:
+        due = time.monotonic()
+        last: float | None = None
+        while not self._stop.wait(max(0.0, due - time.monotonic())):
+            peer = self._peer()
+            if peer is not None:
+                message = self._codec.build(
+                    "MANUAL_CONTROL", self.target_system, self.forward, 0, 500, 0, 0
+                )
+                with contextlib.suppress(OSError):
+                    self._socket.sendto(self._codec.pack(message), peer)
+                    self.sent += 1
+                now = time.monotonic()
+                if last is not None:
+                    self.longest_gap_s = max(self.longest_gap_s, now - last)
+                last = now
+            # The next send a period on; after a stall, from now (no burst to catch up).
+            due = max(due + self._period_s, time.monotonic())

@@ -1,9 +1,9 @@
 """A scenario flown by a real PX4 SITL (SIH physics), with avoidd's camera rendered from its pose.
 
 The same flight as :class:`~avoidd.sim.external.ExternalRun` does with ArduPilot, the PX4 way.
-A ground station on PX4's GCS link keeps neutral sticks (MANUAL_CONTROL at 20 Hz, as a pilot's
-joystick: PX4's Position mode needs manual control), waits for the estimator, arms and takes off
-(``MAV_CMD_NAV_TAKEOFF`` to ``MIS_TAKEOFF_ALT``), then either
+A ground station on PX4's GCS link keeps neutral sticks (MANUAL_CONTROL at 20 Hz from a thread
+of its own, as a pilot's joystick: PX4's Position mode needs manual control), waits for the
+estimator, arms and takes off (``MAV_CMD_NAV_TAKEOFF`` to ``MIS_TAKEOFF_ALT``), then either
 
 - ``planner``: gives avoidd the goal (``DO_REPOSITION`` addressed to avoidd's component 196:
   PX4 routes it to the onboard link and avoidd's COMMAND_ACK back), waits for avoidd's
@@ -32,7 +32,7 @@ from avoidd.daemon import Daemon
 from avoidd.errors import LinkError
 from avoidd.mavlink import codec as mav
 from avoidd.sim.external import ExternalRun, ExternalSummary, Mode, daemon_config
-from avoidd.sim.gcs import GroundStation
+from avoidd.sim.gcs import GroundStation, StickStream
 from avoidd.sim.pose_source import (
     PoseRenderedSource,
     UnpluggableSource,
@@ -85,8 +85,9 @@ class Px4Run(ExternalRun):
             self.params["CP_DIST"] = cp_dist_m
         self.params.setdefault("MIS_TAKEOFF_ALT", self.goal[2])
         self.release_s = release_s
-        self.stick_x = 0
-        """Forward stick the ground station sends (-1000..1000)."""
+        self._stick_x = 0
+        self.sticks: StickStream | None = None
+        """The ground station's stick stream while a run is on."""
         self.offboard_s: float | None = None
         """Seconds from the OFFBOARD request until avoidd saw OFFBOARD (planner)."""
         self.setpoints_after_release: int | None = None
@@ -118,18 +119,20 @@ class Px4Run(ExternalRun):
         )
         self.daemon = daemon
         task: asyncio.Task[int] | None = None
-        sticks: asyncio.Task[None] | None = None
         try:
             gcs = await sitl.start(timeout_s=30.0)
             self.gcs = gcs
             task = asyncio.create_task(daemon.run(), name="avoidd")
-            sticks = asyncio.create_task(self._sticks(gcs), name="gcs-sticks")
+            self.sticks = gcs.sticks(_STICK_RATE_HZ, forward=self._stick_x)
             await self._fly_px4(gcs, sitl)
         finally:
-            if sticks is not None:
-                sticks.cancel()
-                with contextlib.suppress(asyncio.CancelledError):
-                    await sticks
+            if self.sticks is not None:
+                self.sticks.stop()
+                logger.info(
+                    "sticks: %d MANUAL_CONTROL sent, longest gap %.2f s",
+                    self.sticks.sent,
+                    self.sticks.longest_gap_s,
+                )
             if task is not None:
                 daemon.stop()
                 with contextlib.suppress(Exception):
@@ -166,12 +169,16 @@ class Px4Run(ExternalRun):
         camera = PoseRenderedSource(renderer, pose, self.scenario.fps, seed=self.world.seed)
         return UnpluggableSource(camera, self._plugged)
 
-    async def _sticks(self, gcs: GroundStation) -> None:
-        """MANUAL_CONTROL at 20 Hz: throttle centred (hold altitude), forward as ``stick_x``."""
-        while True:
-            system = self.daemon.vehicle.system_id if self.daemon is not None else None
-            gcs.send(gcs.codec.build("MANUAL_CONTROL", system or 1, self.stick_x, 0, 500, 0, 0))
-            await asyncio.sleep(1.0 / _STICK_RATE_HZ)
+    @property
+    def stick_x(self) -> int:
+        """Forward stick the ground station sends (-1000..1000), throttle centred."""
+        return self._stick_x
+
+    @stick_x.setter
+    def stick_x(self, value: int) -> None:
+        self._stick_x = value
+        if self.sticks is not None:
+            self.sticks.forward = value
 
     async def _fly_px4(self, gcs: GroundStation, sitl: Px4Sitl) -> None:
         self.estimator_s = await sitl.wait_estimator(120.0)
