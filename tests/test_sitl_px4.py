@@ -388,6 +388,7 @@ async def test_px4_leaves_offboard_when_avoidd_stops_and_a_restarted_avoidd_wait
     assert fallback_s <= 3.0
     assert modes == {"POSCTL"} and prestream_modes == {"POSCTL"}
     # PX4 brakes from avoidd's last speed (how far it got depends on when the window starts)
-    # and holds: nothing speeds the vehicle up while avoidd is silent.
-    assert max(speeds) <= speeds[0] + 0.4
-    assert max(last_s) < 0.5
+    # and holds: nothing flies the vehicle while avoidd is silent (it flew at 2 m/s). Holding
+    # in Position mode, PX4 itself drifts: up to 0.27 m/s idle, 0.48 m/s with both cores busy.
+    assert max(speeds) < 1.0
+    assert max(last_s) < 0.6
