@@ -200,27 +200,17 @@ def fattened_indices(
     # row), as whole-image row filters: cheaper than gathering each column per pixel.
     span = np.ones((1, _UNSEEN_FAR_PX + 1), dtype=np.uint8)
     right_2d = right_mean.reshape(shape)
-    lowest_right = (
-        cv2.erode(
+    lowest_right, highest_right = (
+        row_filter(
             right_2d,
             span,
-            dst=_scratch("unseen_low", shape, np.uint8),
+            dst=_scratch(name, shape, np.uint8),
             anchor=(_UNSEEN_FAR_PX, 0),
             borderType=cv2.BORDER_REPLICATE,
         )
         .ravel()[at]
         .astype(np.float32)
-    )
-    highest_right = (
-        cv2.dilate(
-            right_2d,
-            span,
-            dst=_scratch("unseen_high", shape, np.uint8),
-            anchor=(_UNSEEN_FAR_PX, 0),
-            borderType=cv2.BORDER_REPLICATE,
-        )
-        .ravel()[at]
-        .astype(np.float32)
+        for row_filter, name in ((cv2.erode, "unseen_low"), (cv2.dilate, "unseen_high"))
     )
     mine = own[spots]
     outside = np.maximum(lowest_right - mine, mine - highest_right)
