@@ -281,8 +281,11 @@ class Px4Run(ExternalRun):
                 height = report.relative_alt / 1000.0
                 if height >= height_m:
                     return
+        mode = daemon.vehicle.mode
+        said = [m.text for m in gcs.of_type("STATUSTEXT")][-4:]
         raise LinkError(
-            f"PX4 did not climb to {height_m:.1f} m in {timeout_s:.0f} s ({height:.1f})"
+            f"PX4 did not climb to {height_m:.1f} m in {timeout_s:.0f} s ({height:.1f} m, "
+            f"mode {mode and mode.name}, it said {said})"
         )
 
     async def _wait_mode(self, name: str, timeout_s: float) -> float:
