@@ -98,6 +98,58 @@ def test_a_reading_that_sees_past_a_remembered_point_removes_it() -> None:
     assert len(memory.north_east) == 0
 
 
+def _nearest_per_bin(east_m: float, north_from_m: float, north_to_m: float) -> np.ndarray:
+    """What a forward sensor at the origin (yaw 0, bins -7..7) reads of a wall along ``east_m``:
+    each bin's nearest point of the wall, as the stereo sectors report it."""
+    scan = _scan({}, range(-7, 8))
+    for i in range(-7, 8):
+        nearest = math.inf
+        for bearing_deg in np.linspace(5.0 * i - 2.5, 5.0 * i + 2.5, 101):
+            sin_b = math.sin(math.radians(bearing_deg))
+            if sin_b * east_m <= 0.0:
+                continue
+            distance = east_m / sin_b
+            if north_from_m <= distance * math.cos(math.radians(bearing_deg)) <= north_to_m:
+                nearest = min(nearest, distance)
+        scan[i % SECTOR_COUNT] = nearest if nearest < 20.0 else np.inf
+    return scan
+
+
+def test_a_slanted_wall_is_remembered_on_the_wall_not_in_front_of_it() -> None:
+    # A corridor's side wall 2 m to the right: each bin reads the wall's nearest point, at the
+    # bin's edge; placed in the bins' middles they would stand up to 0.3 m in front of it.
+    memory = ObstacleMemory(memory_s=10.0)
+    memory.add_scan(_nearest_per_bin(2.0, 0.5, 30.0), S, (0.0, 0.0), 0.0, 20.0)
+    points = memory.north_east
+    near = points[np.hypot(points[:, 0], points[:, 1]) < 12.0]
+    assert len(near) >= 4
+    np.testing.assert_allclose(near[:, 1], 2.0, atol=0.02)
+
+
+def test_a_phantom_in_front_of_a_slanted_wall_is_cleared_though_the_next_bin_reads_nearer() -> None:
+    # A noisy reading left a point 0.6 m in front of the wall (17.6 degrees, 4.5 m). The bins
+    # within half a bin of it look past it; the next bin out reads the wall nearer than it.
+    memory = ObstacleMemory(memory_s=10.0)
+    phantom = (4.5 * math.cos(math.radians(17.6)), 4.5 * math.sin(math.radians(17.6)))
+    memory.north_east = np.array([phantom])
+    memory.t_ns = np.array([S], dtype=np.int64)
+    wall = _nearest_per_bin(2.0, 0.5, 30.0)
+    assert wall[5] < 4.5 + 0.3 < wall[4]
+    memory.add_scan(wall, 2 * S, (0.0, 0.0), 0.0, 20.0)
+    assert not np.any(np.all(np.isclose(memory.north_east, phantom), axis=1))
+
+
+def test_the_end_of_a_wall_beside_a_gap_stays_when_the_gap_is_looked_through() -> None:
+    # The wall's end was placed at 2 degrees, 5 m (half a bin off, as a bin's middle can be):
+    # bin 0 now looks through the gap beside it, bin 1 still reads the wall there.
+    memory = ObstacleMemory(memory_s=10.0)
+    end = (5.0 * math.cos(math.radians(2.0)), 5.0 * math.sin(math.radians(2.0)))
+    memory.north_east = np.array([end])
+    memory.t_ns = np.array([S], dtype=np.int64)
+    memory.add_scan(_scan({1: 5.0, 2: 5.2}, range(-7, 8)), 2 * S, (0.0, 0.0), 0.0, 20.0)
+    assert np.any(np.all(np.isclose(memory.north_east, end), axis=1))
+
+
 def test_bearing_bins_follow_the_yaw() -> None:
     bins = bearing_bins(np.array([math.pi / 2, math.pi]), math.pi / 2)
     assert bins.tolist() == [0, 18]
@@ -361,3 +413,98 @@ def test_after_two_side_changes_round_one_obstacle_a_third_is_a_dead_end() -> No
     changes = sum(a != b for a, b in itertools.pairwise(sides))
     assert changes == 2, (sides, states)
     assert states[-1] in {"dead end", "no path"}
+
+
+def test_backing_out_for_a_moment_keeps_the_side_the_vehicle_was_going_round_on() -> None:
+    # Going north past a wall on the goal's side (the goal is 60 degrees right): one frame shows
+    # everything ahead closed and the planner backs out; the next shows the way north open
+    # again, and the vehicle goes on north, not back.
+    planner = _planner(unknown="free", memory_s=0.0)
+    goal = Goal(15.0, 26.0, 2.0)
+    right_wall = {i: 2.6 for i in range(9, 25)}  # closes the goal's way, not north
+    chosen = []
+    for step, bins in enumerate([right_wall, {i: 1.0 for i in range(-20, 21)}, right_wall]):
+        t_ns = S + step * S // 10
+        pose = Pose(t_ns, 5.0 + 0.01 * step, 0.0, -2.0, 0.0, 1.0, 0.0)
+        planner.observe_scan(_scan(bins), t_ns, pose)
+        decision = planner.decide(t_ns, pose, goal, fresh=True)
+        assert decision.direction_deg is not None, decision
+        chosen.append(math.remainder(decision.direction_deg, 360.0))
+    assert abs(chosen[0]) <= 15.0, chosen  # north, left of the goal
+    assert abs(chosen[1]) >= 100.0, chosen  # backing out
+    assert abs(chosen[2]) <= 15.0, chosen  # and north again
+
+
+def test_a_corridor_wide_enough_at_walking_pace_stays_open_along_it_at_full_speed() -> None:
+    # Walls 1.85 m either side, from 1 m ahead: room for the clearance (1.5 m) and the turning
+    # buffer at walking pace (0.25 m), not for the buffer at 3 m/s. Flying straight along it
+    # the vehicle does not turn, so it goes on at speed instead of turning back.
+    planner = _planner(unknown="free", memory_s=10.0)
+    along = np.arange(1.0, 20.0, 0.1)
+    planner.memory.north_east = np.concatenate(
+        [np.stack([along, np.full_like(along, side)], axis=1) for side in (-1.85, 1.85)]
+    )
+    planner.memory.t_ns = np.full(len(planner.memory.north_east), S, dtype=np.int64)
+    fast = Pose(S, 0.0, 0.0, -2.0, 0.0, 3.0, 0.0)
+    decision = planner.decide(S, fast, Goal(30.0, 0.0, 2.0), fresh=True)
+    assert decision.state == "moving" and decision.direction_deg == pytest.approx(0.0)
+    assert decision.speed_limit_m_s >= 2.5
+    # Turning into the same corridor from across it, the buffer at speed is kept.
+    across = Pose(S, 0.0, 0.0, -2.0, 0.0, 0.0, 3.0)
+    turned = _planner(unknown="free", memory_s=10.0)
+    turned.memory.north_east, turned.memory.t_ns = planner.memory.north_east, planner.memory.t_ns
+    assert turned.decide(S, across, Goal(30.0, 0.0, 2.0), fresh=True).direction_deg != 0.0
+
+
+def test_within_the_clearance_of_a_wall_no_way_leads_nearer_to_it() -> None:
+    # Stopped 1.3 m from a wall (inside the 1.5 m clearance: stereo's overshoot). Along it and
+    # away stay open; 5 degrees toward it is closed (else the vehicle creeps in a few
+    # centimetres a cycle, each cycle's nearest point the new limit).
+    planner = _planner(unknown="free", memory_s=10.0)
+    along = np.arange(-5.0, 20.0, 0.1)
+    wall = np.stack([along, np.full_like(along, 1.3)], axis=1)
+    planner.memory.north_east = wall
+    planner.memory.t_ns = np.full(len(wall), S, dtype=np.int64)
+    pose = _pose(1.0)
+    free = planner.obstacle_free_m(pose, np.radians([0.0, 5.0, -5.0, -90.0, 180.0]))
+    assert free[0] == np.inf and free[2] == np.inf and free[3] == np.inf and free[4] == np.inf
+    assert free[1] == 0.0
+    # Between two such walls (a corridor narrower than the clearance) the way along stays open.
+    planner.memory.north_east = np.concatenate([wall, wall * [1.0, -1.0]])
+    planner.memory.t_ns = np.full(2 * len(wall), S, dtype=np.int64)
+    assert planner.obstacle_free_m(pose, np.radians([0.0]))[0] == np.inf
+
+
+def test_a_gap_that_opens_only_below_walking_pace_slows_the_vehicle_further() -> None:
+    # As the 4 m gap above, 3.78 m wide, 4 m ahead (3.72 m across the line through its middle,
+    # 10 degrees off): with the buffer at 1 m/s (0.4 m) the clearance (1.9 m each side) does
+    # not fit; at 0.5 m/s (0.325 m) it does.
+    goal = Goal(30.0, 0.0, 2.0)
+    east = np.concatenate([np.arange(-10.0, -3.38, 0.02), np.arange(0.4, 10.0, 0.02)])
+    planner = _planner(unknown="free", memory_s=10.0)
+    planner.memory.north_east = np.stack([np.full_like(east, 15.0), east], axis=1)
+    planner.memory.t_ns = np.full(len(east), S, dtype=np.int64)
+    fast = Pose(S, 11.0, -0.8, -2.0, 0.0, 3.0, 0.0)  # the gap's middle 10 degrees left
+    decision = planner.decide(S, fast, goal, fresh=True)
+    assert decision.state == "moving"
+    assert decision.speed_limit_m_s == pytest.approx(0.5, abs=0.01), decision
+
+
+def test_a_whole_turn_round_a_goal_whose_way_stays_blocked_is_no_path() -> None:
+    # The goal inside a closed room (6 m square): the vehicle goes round it 5 m out, the way to
+    # the goal blocked all along. Not given up within the first turn; given up after it.
+    planner = _planner(unknown="free", memory_s=60.0, no_progress_s=600.0)
+    side = np.arange(-3.0, 3.0, 0.05)
+    walls = [np.stack([side, np.full_like(side, e)], axis=1) for e in (-3.0, 3.0)]
+    walls += [np.stack([np.full_like(side, n), side], axis=1) for n in (-3.0, 3.0)]
+    planner.memory.north_east = np.concatenate(walls)
+    planner.memory.t_ns = np.full(len(planner.memory.north_east), S, dtype=np.int64)
+    goal = Goal(0.0, 0.0, 2.0)
+    states = []
+    for step in range(80):  # 5 degrees a step
+        angle = math.radians(180.0 + 5.0 * step)
+        t_ns = S + step * S // 10
+        pose = Pose(t_ns, 5.0 * math.cos(angle), 5.0 * math.sin(angle), -2.0, angle + math.pi)
+        states.append(planner.decide(t_ns, pose, goal, fresh=True).state)
+    assert "no path" not in states[:70], states
+    assert states[-1] == "no path", states

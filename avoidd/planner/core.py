@@ -19,7 +19,9 @@ VFH+ in spirit, over 72 world directions (5 degrees from north):
   (:func:`effective_latency_s`);
 - yaw toward the direction of travel (rate-limited), so a forward camera sees the way;
 - no admissible direction: hold, then turn up to 180 degrees each way looking for one; none
-  within ``dead_end_scan_s``: hold and say "no path to goal". Never crawl forward.
+  within ``dead_end_scan_s``: hold and say "no path to goal". Never crawl forward. Also "no
+  path" once the vehicle has gone a whole turn round the goal without once seeing the line to
+  it clear (what blocks it encloses the goal).
 """
 
 from __future__ import annotations
@@ -39,28 +41,34 @@ MU_HEADING = 2.0
 MU_PREVIOUS = 2.0
 MU_OBSTRUCTED = 5.0
 COMMITMENT_COST = 3.0 * math.pi * MU_GOAL
+"""Extra cost of the side of the goal direction the vehicle is not committed to."""
 MAX_SIDE_CHANGES = 2
 """Side changes allowed while going round one obstacle (the goal direction blocked); a third
 would be dithering: the planner looks for a way on the side it is on, then gives up."""
-"""Extra cost of the side of the goal direction the vehicle is not committed to."""
 _ALTITUDE_GAIN = 1.0
 _BUFFER_M = 0.25
 _BUFFER_S = 0.15
-_SLOW_FOR_GAP_M_S = 1.0
+"""Turning buffer: metres, and metres per m/s of speed (see :meth:`Planner.decide`)."""
+_SLOW_FOR_GAP_M_S = (1.0, 0.5)
+"""Speeds at which the turning buffer lets a gap open that is too narrow at full speed."""
 _ONWARD_RAD = math.radians(100.0)
 """Ways within this of the goal's direction go onward; beyond it the vehicle backs out."""
 _BACK_RAD = math.radians(170.0)
+"""Ways at least this far from the goal's direction lead straight back."""
 _LEAVE_M = 0.4
 """A way stays admissible down to this much free distance (it becomes admissible from 1 m):
 the speed law brings the vehicle up to its margin and it stops there, not half a metre short."""
-"""Ways at least this far from the goal's direction lead straight back."""
-"""Speed at which the turning buffer lets a gap open that is too narrow at full speed."""
-"""Turning buffer: metres, and metres per m/s of speed (see :meth:`Planner.decide`)."""
+_STRAIGHT_RAD = math.radians(5.0)
+"""Ways within this of the vehicle's velocity need no turning room (see :meth:`Planner.decide`)."""
 _YAW_GAIN = 2.0
 _PAUSE_NS = 1_000_000_000
 """A gap this long between decisions means planning was paused (its timers restart)."""
 _INSIDE_SLACK_M = 0.05
 """Within the clearance of a point, the ways that bring the vehicle this much nearer close."""
+_TOWARD_RAD = math.radians(88.0)
+"""Ways this close to the side of what is within the clearance bring the vehicle nearer."""
+_ONE_SIDED = 0.5
+"""How one-sided the points within the clearance must be for that side to count."""
 _ARRIVED_ALTITUDE_M = 0.5
 
 
@@ -176,7 +184,6 @@ class Planner:
     _previous_rad: float | None = None
     _side: int = 0
     _side_changes: int = 0
-    _side_onward: bool = True
     _dead_end_since_ns: int | None = None
     _turned_rad: float = 0.0
     _last_yaw_rad: float = 0.0
@@ -184,6 +191,8 @@ class Planner:
     _best_goal_m: float = math.inf
     _best_since_ns: int | None = None
     _given_up: bool = False
+    _goal_bearing_rad: float | None = None
+    _circled_rad: float = 0.0
     _scan_side: float = 1.0
     _last_decide_ns: int | None = None
 
@@ -224,6 +233,8 @@ class Planner:
         self._best_goal_m = math.inf
         self._best_since_ns = None
         self._given_up = False
+        self._goal_bearing_rad = None
+        self._circled_rad = 0.0
 
     def observe_scan(
         self, distance_m: np.ndarray, t_capture_ns: int, pose_at_capture: Pose
@@ -254,14 +265,29 @@ class Planner:
         """
         offsets = self.memory.offsets((pose.north_m, pose.east_m))
         clearance = self.clearance_m + buffer_m
-        if offsets.size:
-            # Already nearer than that to something (pushed by wind, or the buffer is wider
-            # than the corridor): keep at least the distance there is, so that the ways along
-            # or away from it stay open and only the ways toward it close.
-            nearest_m = float(np.min(np.hypot(offsets[:, 0], offsets[:, 1])))
-            inside = max(nearest_m - _INSIDE_SLACK_M, self.config.vehicle_radius_m)
-            clearance = min(clearance, inside)
-        return free_distance(offsets, headings_rad, clearance)
+        if not offsets.size:
+            return free_distance(offsets, headings_rad, clearance)
+        # Already nearer than that to something (pushed by wind, stopped at a wall with the
+        # overshoot of stereo, or the buffer is wider than the corridor): keep at least the
+        # distance there is, so that the ways along or away from it stay open.
+        ranges_m = np.hypot(offsets[:, 0], offsets[:, 1])
+        nearest_m = float(np.min(ranges_m))
+        inside = max(nearest_m - _INSIDE_SLACK_M, self.config.vehicle_radius_m)
+        free = free_distance(offsets, headings_rad, min(clearance, inside))
+        # That alone lets the vehicle creep in a few centimetres a cycle along a slant (each
+        # cycle's nearest point is the new limit): the ways toward what is within the
+        # clearance close, toward the side it is on as a whole (a wall's points within the
+        # clearance, weighted by how far in; none when they surround the vehicle evenly, as a
+        # corridor narrower than the clearance does).
+        within = ranges_m < self.clearance_m
+        if within.any():
+            depth = (self.clearance_m - ranges_m[within]) / ranges_m[within]
+            push = (depth[:, None] * offsets[within]).sum(axis=0)
+            if float(np.hypot(*push)) >= _ONE_SIDED * float(depth.sum() * nearest_m):
+                toward = math.atan2(float(push[1]), float(push[0]))
+                closer = np.abs(wrap_rad(headings_rad - toward)) < _TOWARD_RAD
+                free = np.where(closer, 0.0, free)
+        return free
 
     def free_m(self, pose: Pose, headings_rad: np.ndarray, buffer_m: float = 0.0) -> np.ndarray:
         """Free distance along each heading from a pose.
@@ -299,6 +325,7 @@ class Planner:
             # time without progress, nor time spent looking for a way.
             self._best_since_ns = None
             self._dead_end_since_ns = None
+            self._goal_bearing_rad = None
         self._last_decide_ns = now_ns
         self.memory.expire(now_ns)
         to_north, to_east = goal.north_m - pose.north_m, goal.east_m - pose.east_m
@@ -325,7 +352,16 @@ class Planner:
             self.clearance_m + buffer,
             self._look_m,
         )
-        looked = self.free_m(pose, np.concatenate([self._directions, [goal_rad], gaps]), buffer)
+        candidates = np.concatenate([self._directions, [goal_rad], gaps])
+        looked = self.free_m(pose, candidates, buffer)
+        if buffer > _BUFFER_M:
+            # Flying on the way it already flies, the vehicle does not turn: no turning room is
+            # kept there, so a corridor that is wide enough at walking pace stays open at speed
+            # (else the vehicle turns back until it has slowed down, and then turns again).
+            along = math.atan2(pose.east_m_s, pose.north_m_s)
+            straight = np.abs(wrap_rad(candidates - along)) <= _STRAIGHT_RAD
+            if straight.any():
+                looked[straight] = self.free_m(pose, candidates[straight], _BUFFER_M)
         grid_count = self._directions.size
         free, goal_free = looked[:grid_count], float(looked[grid_count])
         gaps_free = looked[grid_count + 1 :]
@@ -348,6 +384,16 @@ class Planner:
             if searching:
                 keep &= np.abs(wrap_rad(headings - goal_rad)) < 1.6
         goal_open = goal_free >= min(goal_m, enter)
+        # Going round while the line to the goal is never clear, the goal's bearing turns; a
+        # whole turn means the vehicle has circled it: what blocks the way encloses the goal.
+        if goal_free >= goal_m or self._goal_bearing_rad is None:
+            self._circled_rad = 0.0
+        else:
+            self._circled_rad += float(wrap_rad(goal_rad - self._goal_bearing_rad))
+        self._goal_bearing_rad = goal_rad
+        if abs(self._circled_rad) >= 2.0 * math.pi:
+            self._given_up = True
+            return self.hold("no path", goal_m)
         if goal_open:
             self._side = 0
             self._side_changes = 0
@@ -381,13 +427,14 @@ class Planner:
         # The speed law counts the free distance without the turning buffer.
         chosen_free = float(self.free_m(pose, np.array([chosen]))[0])
         delta = float(wrap_rad(chosen - goal_rad))
-        if not goal_open and abs(delta) > math.radians(2.5):
+        if not goal_open and math.radians(2.5) < abs(delta) <= _ONWARD_RAD:
+            # Committed to the side of an onward way only: backing out for a moment (the way on
+            # was blocked for a cycle, a pocket) leaves the commitment as it was, so the vehicle
+            # goes on where it was going once that way opens again.
             side = 1 if delta > 0 else -1
-            onward = abs(delta) <= _ONWARD_RAD
-            if self._side and side != self._side and onward and self._side_onward:
+            if self._side and side != self._side:
                 self._side_changes += 1
             self._side = side
-            self._side_onward = onward
         self._previous_rad = chosen
         speed = min(
             config.max_speed_m_s,
@@ -426,15 +473,14 @@ class Planner:
         """A speed limit that lets a way through open: ``inf`` when none is needed.
 
         The turning buffer grows with speed, so a gap that is wide enough at walking pace is
-        closed to a vehicle flying at it. When the chosen way is blocked farther on and, at
-        walking pace, a way would run clear (to the goal or as far as the sensors see) no more
-        than 30 degrees farther from the goal's direction, on the side the vehicle is committed
-        to, slow to :data:`_SLOW_FOR_GAP_M_S` so that it opens.
+        closed to a vehicle flying at it. When the chosen way is blocked farther on and, at a
+        walking pace (:data:`_SLOW_FOR_GAP_M_S`, the faster first), a way would run clear (to
+        the goal or as far as the sensors see) with that pace's buffer, no more than 30 degrees
+        farther from the goal's direction, on the side the vehicle is committed to, slow to
+        that pace so that it opens.
         """
-        if buffer_m <= _BUFFER_M + _BUFFER_S * _SLOW_FOR_GAP_M_S:
-            return math.inf
         clear_m = min(goal_m, self.max_range_m)
-        if chosen_free_m >= clear_m:
+        if chosen_free_m >= clear_m or buffer_m <= _BUFFER_M + _BUFFER_S * _SLOW_FOR_GAP_M_S[-1]:
             return math.inf
         offsets = self.memory.offsets((pose.north_m, pose.east_m))
         gaps = gap_headings(offsets, self.clearance_m + _BUFFER_M, self._look_m)
@@ -448,8 +494,14 @@ class Planner:
             worth &= np.sign(goal_delta) != -self._side
         if not worth.any():
             return math.inf
-        clear = self.free_m(pose, headings[worth], _BUFFER_M) >= clear_m
-        return _SLOW_FOR_GAP_M_S if clear.any() else math.inf
+        for slow_m_s in _SLOW_FOR_GAP_M_S:
+            slow_buffer_m = _BUFFER_M + _BUFFER_S * slow_m_s
+            opens = buffer_m > slow_buffer_m and bool(
+                (self.free_m(pose, headings[worth], slow_buffer_m) >= clear_m).any()
+            )
+            if opens:
+                return slow_m_s
+        return math.inf
 
     def _look_direction(
         self, pose: Pose, goal_rad: float, chosen_rad: float, buffer_m: float

@@ -23,6 +23,9 @@ _CELL_M = 0.1
 """Remembered points are kept one per cell of this size."""
 _SEE_PAST_M = 0.3
 """A remembered point is gone only when a new reading sees this far beyond it."""
+_HALF_BIN_RAD = float(np.radians(SECTOR_WIDTH_DEG / 2.0))
+_SURFACE_RATIO = 2.0
+"""Readings of neighbouring bins at most this far apart (as a ratio) may be one surface."""
 
 
 @dataclass
@@ -69,18 +72,20 @@ class ObstacleMemory:
         if self.t_ns.size:
             offset = self.north_east - origin
             at = np.hypot(offset[:, 0], offset[:, 1])
-            bin_of = bearing_bins(np.arctan2(offset[:, 1], offset[:, 0]), yaw_rad)
-            # Seen past only when its bin and both neighbours look beyond it: a point near a
-            # bin's edge (the end of a wall beside a gap) is not cleared by the bin that looks
-            # through the gap next to it.
+            heading = np.arctan2(offset[:, 1], offset[:, 0])
+            # Seen past only when every bin within half a bin of it looks beyond it: a point is
+            # placed up to half a bin off where it was (a bin's reading lies somewhere across
+            # it), so a point near a bin's edge (the end of a wall beside a gap) is not cleared
+            # by the bin that looks through the gap next to it.
             past = measured & (seen_to > 0)
-            seen_past = np.ones(bin_of.size, dtype=np.bool_)
-            for step in (-1, 0, 1):
-                neighbour = (bin_of + step) % SECTOR_COUNT
-                seen_past &= past[neighbour] & (seen_to[neighbour] > at + _SEE_PAST_M)
+            seen_past = np.ones(heading.size, dtype=np.bool_)
+            for side in (-1.0, 1.0):
+                near = bearing_bins(heading + side * _HALF_BIN_RAD, yaw_rad)
+                seen_past &= past[near] & (seen_to[near] > at + _SEE_PAST_M)
             keep = ~seen_past
             self.north_east, self.t_ns = self.north_east[keep], self.t_ns[keep]
         finite = np.isfinite(distance)
+        bearing = bearing + surface_shift_rad(distance)
         if finite.any():
             new = origin + np.stack(
                 [
@@ -113,6 +118,37 @@ class ObstacleMemory:
     def offsets(self, north_east_m: tuple[float, float]) -> Array:
         """The remembered points relative to a position, (N, 2) north and east."""
         return self.north_east - np.asarray(north_east_m, dtype=np.float64)
+
+
+def surface_shift_rad(distance_m: Array) -> Array:
+    """Where in its bin each reading lies, as an angle from the bin's middle.
+
+    A bin's reading is its nearest point, somewhere across the bin's 5 degrees. Where the
+    readings fall steadily from one neighbour through this bin to the other (a surface seen at
+    a slant: the side wall of a corridor), that point is on the edge toward the nearer
+    neighbour; placed in the middle it would sit up to a few tenths of a metre in front of the
+    wall, and a corridor wide enough to fly would look closed a few metres ahead. The same at
+    the edge of the view, where the surface runs on out of sight. Anywhere else (a nearest bin,
+    the last bin before a gap, where the surface ends somewhere inside the bin) the reading
+    stays in the middle.
+
+    Args:
+        distance_m: The scan's 72 distances (NaN unknown, ``inf`` clear), bin 0 ahead.
+
+    Returns:
+        (72,) radians to add to each bin's bearing: 0 or half a bin either way.
+    """
+    before = np.roll(distance_m, 1)
+    after = np.roll(distance_m, -1)
+    reach = _SURFACE_RATIO * distance_m
+    with np.errstate(invalid="ignore"):
+        # Nearer toward the bin before (or the surface runs on out of view there), and the bin
+        # after not much farther (not a gap).
+        toward_before = (before < distance_m) | np.isnan(before)
+        toward_after = (after < distance_m) | np.isnan(after)
+        rising = toward_before & (distance_m < after) & (after <= reach)
+        falling = toward_after & (distance_m < before) & (before <= reach)
+    return np.where(falling, _HALF_BIN_RAD, np.where(rising, -_HALF_BIN_RAD, 0.0))
 
 
 def bearing_bins(heading_rad: Array, yaw_rad: float) -> npt.NDArray[np.int64]:
