@@ -256,7 +256,7 @@ class Planner:
         return Decision((0.0, 0.0, 0.0), 0.0, state, goal_distance_m=goal_distance_m)
 
     def obstacle_free_m(
-        self, pose: Pose, headings_rad: np.ndarray, buffer_m: float = 0.0
+        self, pose: Pose, headings_rad: np.ndarray, buffer_m: float | np.ndarray = 0.0
     ) -> np.ndarray:
         """Free distance along each heading among the remembered obstacles only.
 
@@ -273,7 +273,7 @@ class Planner:
         ranges_m = np.hypot(offsets[:, 0], offsets[:, 1])
         nearest_m = float(np.min(ranges_m))
         inside = max(nearest_m - _INSIDE_SLACK_M, self.config.vehicle_radius_m)
-        free = free_distance(offsets, headings_rad, min(clearance, inside))
+        free = free_distance(offsets, headings_rad, np.minimum(clearance, inside))
         # That alone lets the vehicle creep in a few centimetres a cycle along a slant (each
         # cycle's nearest point is the new limit): the ways toward what is within the
         # clearance close, toward the side it is on as a whole (a wall's points within the
@@ -289,8 +289,10 @@ class Planner:
                 free = np.where(closer, 0.0, free)
         return free
 
-    def free_m(self, pose: Pose, headings_rad: np.ndarray, buffer_m: float = 0.0) -> np.ndarray:
-        """Free distance along each heading from a pose.
+    def free_m(
+        self, pose: Pose, headings_rad: np.ndarray, buffer_m: float | np.ndarray = 0.0
+    ) -> np.ndarray:
+        """Free distance along each heading from a pose (``buffer_m``: one, or one each).
 
         The nearer of :meth:`obstacle_free_m` and, with unknown directions blocked, where the
         vehicle's corridor reaches ground the cameras have not looked at within the memory
@@ -353,15 +355,12 @@ class Planner:
             self._look_m,
         )
         candidates = np.concatenate([self._directions, [goal_rad], gaps])
-        looked = self.free_m(pose, candidates, buffer)
-        if buffer > _BUFFER_M:
-            # Flying on the way it already flies, the vehicle does not turn: no turning room is
-            # kept there, so a corridor that is wide enough at walking pace stays open at speed
-            # (else the vehicle turns back until it has slowed down, and then turns again).
-            along = math.atan2(pose.east_m_s, pose.north_m_s)
-            straight = np.abs(wrap_rad(candidates - along)) <= _STRAIGHT_RAD
-            if straight.any():
-                looked[straight] = self.free_m(pose, candidates[straight], _BUFFER_M)
+        # Flying on the way it already flies, the vehicle does not turn: no turning room is
+        # kept there, so a corridor that is wide enough at walking pace stays open at speed
+        # (else the vehicle turns back until it has slowed down, and then turns again).
+        along = math.atan2(pose.east_m_s, pose.north_m_s)
+        straight = np.abs(wrap_rad(candidates - along)) <= _STRAIGHT_RAD
+        looked = self.free_m(pose, candidates, np.where(straight, min(buffer, _BUFFER_M), buffer))
         grid_count = self._directions.size
         free, goal_free = looked[:grid_count], float(looked[grid_count])
         gaps_free = looked[grid_count + 1 :]
@@ -494,13 +493,14 @@ class Planner:
             worth &= np.sign(goal_delta) != -self._side
         if not worth.any():
             return math.inf
-        for slow_m_s in _SLOW_FOR_GAP_M_S:
-            slow_buffer_m = _BUFFER_M + _BUFFER_S * slow_m_s
-            opens = buffer_m > slow_buffer_m and bool(
-                (self.free_m(pose, headings[worth], slow_buffer_m) >= clear_m).any()
-            )
-            if opens:
-                return slow_m_s
+        # Every pace slower than now in one pass: the same ways, each pace's buffer.
+        paces = [v for v in _SLOW_FOR_GAP_M_S if buffer_m > _BUFFER_M + _BUFFER_S * v]
+        ways = headings[worth]
+        buffers = np.repeat([_BUFFER_M + _BUFFER_S * v for v in paces], ways.size)
+        clear = self.free_m(pose, np.tile(ways, len(paces)), buffers) >= clear_m
+        for pace, opens in zip(paces, clear.reshape(len(paces), ways.size), strict=True):
+            if opens.any():
+                return pace
         return math.inf
 
     def _look_direction(

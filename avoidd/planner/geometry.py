@@ -23,7 +23,7 @@ def wrap_rad(angle: Array | float) -> Array:
     return np.asarray(-(np.remainder(-np.asarray(angle) + math.pi, 2 * math.pi) - math.pi))
 
 
-def free_distance(offsets_ne: Array, headings_rad: Array, clearance_m: float) -> Array:
+def free_distance(offsets_ne: Array, headings_rad: Array, clearance_m: float | Array) -> Array:
     """How far the vehicle can go along each heading before it is ``clearance_m`` from a point.
 
     This is the VFH+ enlargement, exact for a disc: a point at distance ``d`` blocks the
@@ -32,7 +32,7 @@ def free_distance(offsets_ne: Array, headings_rad: Array, clearance_m: float) ->
     Args:
         offsets_ne: (N, 2) obstacle points relative to the vehicle, north and east (metres).
         headings_rad: (K,) headings, radians from north, clockwise.
-        clearance_m: Vehicle radius plus margin.
+        clearance_m: Vehicle radius plus margin: one for all headings, or (K,) one each.
 
     Returns:
         (K,) distances; 0 toward a point already within the clearance, ``inf`` when nothing
@@ -43,7 +43,8 @@ def free_distance(offsets_ne: Array, headings_rad: Array, clearance_m: float) ->
     unit = np.stack([np.cos(headings_rad), np.sin(headings_rad)], axis=1)  # (K, 2)
     along = unit @ offsets_ne.T  # (K, N)
     across = unit[:, 0:1] * offsets_ne[:, 1] - unit[:, 1:2] * offsets_ne[:, 0]
-    reach = clearance_m * clearance_m - across * across
+    clearance = np.broadcast_to(np.asarray(clearance_m, dtype=np.float64), headings_rad.shape)
+    reach = clearance[:, None] ** 2 - across * across
     with np.errstate(invalid="ignore"):
         contact = along - np.sqrt(np.maximum(reach, 0.0))
     # Only points the swept disc meets ahead block a heading; one already within the
