@@ -17,11 +17,13 @@ VFH+ in spirit, over 72 world directions (5 degrees from north):
   latency is the configured one, or more when the newest scan is older than it allows for (a
   loaded machine): its age, one setpoint period and the autopilot's response
   (:func:`effective_latency_s`);
-- yaw toward the direction of travel (rate-limited), so a forward camera sees the way;
-- no admissible direction: hold, then turn up to 180 degrees each way looking for one; none
-  within ``dead_end_scan_s``: hold and say "no path to goal". Never crawl forward. Also "no
-  path" once the vehicle has gone a whole turn round the goal without once seeing the line to
-  it clear (what blocks it encloses the goal).
+- yaw toward the direction of travel (rate-limited), so a forward camera sees the way, and
+  going round something as far toward the goal as keeps the way in view (a corridor's turn or
+  a wall's end is seen early);
+- no admissible direction: hold, then turn up to 180 degrees each way looking for one toward
+  the goal's side; none within ``dead_end_scan_s``: hold and say "no path to goal". Never
+  crawl forward. Also "no path" once the vehicle has gone a whole turn round the goal without
+  once seeing the line to it clear (what blocks it encloses the goal).
 """
 
 from __future__ import annotations
@@ -35,6 +37,7 @@ from avoidd.config import AvoidanceConfig
 from avoidd.planner.geometry import directions_rad, free_distance, gap_headings, wrap_rad
 from avoidd.planner.memory import ObstacleMemory
 from avoidd.planner.visibility import VisibilityGrid
+from avoidd.types import SECTOR_COUNT, SECTOR_WIDTH_DEG
 
 MU_GOAL = 5.0
 MU_HEADING = 2.0
@@ -51,6 +54,8 @@ _BUFFER_S = 0.15
 """Turning buffer: metres, and metres per m/s of speed (see :meth:`Planner.decide`)."""
 _SLOW_FOR_GAP_M_S = (1.0, 0.5)
 """Speeds at which the turning buffer lets a gap open that is too narrow at full speed."""
+_PASSING_RAD = math.radians(30.0)
+"""A way this much nearer the goal's direction than the one flown is worth slowing down for."""
 _ONWARD_RAD = math.radians(100.0)
 """Ways within this of the goal's direction go onward; beyond it the vehicle backs out."""
 _BACK_RAD = math.radians(170.0)
@@ -70,6 +75,10 @@ _TOWARD_RAD = math.radians(88.0)
 _ONE_SIDED = 0.5
 """How one-sided the points within the clearance must be for that side to count."""
 _ARRIVED_ALTITUDE_M = 0.5
+_BACK_OUT_AFTER_NS = 300_000_000
+"""A way back must stay the choice this long before the vehicle turns back (it brakes first)."""
+_TURN_BACK_M_S = 0.5
+"""Slower than this, turning back needs no braking first."""
 
 
 @dataclass(frozen=True)
@@ -195,8 +204,12 @@ class Planner:
     _circled_rad: float = 0.0
     _scan_side: float = 1.0
     _last_decide_ns: int | None = None
+    _back_since_ns: int | None = None
+    _in_view: np.ndarray = field(init=False)
+    _view_margin_rad: float = field(init=False)
 
     def __post_init__(self) -> None:
+        self._in_view = np.zeros(SECTOR_COUNT, dtype=np.bool_)
         self.memory = ObstacleMemory(self.config.memory_s)
         self.visibility = VisibilityGrid()
         config = self.config
@@ -207,15 +220,20 @@ class Planner:
             + config.max_speed_m_s * latency_s
             + 1.0
         )
+        # The way flown stays this far inside the view when the cameras turn toward the goal:
+        # the corridor the vehicle sweeps, seen from a stop away, and one bin of jitter.
+        self._view_margin_rad = math.atan2(self.clearance_m, self._look_m) + math.radians(
+            SECTOR_WIDTH_DEG
+        )
         self._directions = directions_rad()
         self._admissible = np.zeros(self._directions.size, dtype=np.bool_)
 
     def reconfigure(self, config: AvoidanceConfig) -> None:
         """Take new settings (parameters set in flight); the memory is kept."""
-        memory, visibility = self.memory, self.visibility
+        memory, visibility, in_view = self.memory, self.visibility, self._in_view
         self.config = config
         self.__post_init__()
-        self.memory, self.visibility = memory, visibility
+        self.memory, self.visibility, self._in_view = memory, visibility, in_view
         self.memory.memory_s = config.memory_s
 
     @property
@@ -235,6 +253,7 @@ class Planner:
         self._given_up = False
         self._goal_bearing_rad = None
         self._circled_rad = 0.0
+        self._back_since_ns = None
 
     def observe_scan(
         self, distance_m: np.ndarray, t_capture_ns: int, pose_at_capture: Pose
@@ -243,6 +262,7 @@ class Planner:
         if t_capture_ns <= self._last_scan_ns:
             return
         self._last_scan_ns = t_capture_ns
+        self._in_view |= ~np.isnan(distance_m)  # the bins the heads cover (their mounts are fixed)
         where = (pose_at_capture.north_m, pose_at_capture.east_m)
         self.memory.add_scan(
             distance_m, t_capture_ns, where, pose_at_capture.yaw_rad, self.max_range_m
@@ -328,6 +348,7 @@ class Planner:
             self._best_since_ns = None
             self._dead_end_since_ns = None
             self._goal_bearing_rad = None
+            self._back_since_ns = None
         self._last_decide_ns = now_ns
         self.memory.expire(now_ns)
         to_north, to_east = goal.north_m - pose.north_m, goal.east_m - pose.east_m
@@ -377,11 +398,9 @@ class Planner:
             headings_free = np.concatenate([headings_free, gaps_free[gaps_free >= enter]])
         keep = np.ones(headings.size, dtype=np.bool_)
         if self._dead_end_since_ns is not None:
-            # While turning to look, only a way toward the goal side ends the search; once the
-            # search is over, any way out will do (backing out of a pocket).
-            searching = (now_ns - self._dead_end_since_ns) / 1e9 < self.config.dead_end_scan_s
-            if searching:
-                keep &= np.abs(wrap_rad(headings - goal_rad)) < 1.6
+            # While turning to look, only a way toward the goal side ends the search (none
+            # within the scan time: no path; backing out is the pilot's call).
+            keep &= np.abs(wrap_rad(headings - goal_rad)) < 1.6
         goal_open = goal_free >= min(goal_m, enter)
         # Going round while the line to the goal is never clear, the goal's bearing turns; a
         # whole turn means the vehicle has circled it: what blocks the way encloses the goal.
@@ -434,6 +453,17 @@ class Planner:
             if self._side and side != self._side:
                 self._side_changes += 1
             self._side = side
+        moving_m_s = math.hypot(pose.north_m_s, pose.east_m_s)
+        if moving_m_s > _TURN_BACK_M_S and abs(float(wrap_rad(chosen - along))) > _ONWARD_RAD:
+            # The way chosen turns the vehicle back on itself (every way on looks closed):
+            # brake first, and turn back only if that stays so (one frame's closure would
+            # otherwise send the vehicle back for a cycle, then on again).
+            if self._back_since_ns is None:
+                self._back_since_ns = now_ns
+            if now_ns - self._back_since_ns < _BACK_OUT_AFTER_NS:
+                return Decision((0.0, 0.0, vertical), 0.0, "moving", goal_distance_m=goal_m)
+        else:
+            self._back_since_ns = None
         self._previous_rad = chosen
         speed = min(
             config.max_speed_m_s,
@@ -442,12 +472,18 @@ class Planner:
             slow_for,
         )
         # The camera looks where the vehicle goes, or, when the way to the goal is only
-        # blocked by what has not been seen, that way first; the vehicle slows down while
-        # its heading differs from its way.
+        # blocked by what has not been seen, that way first.
         look = self._look_direction(pose, goal_rad, chosen, buffer)
-        # its heading differs from its way (the way itself was seen: the speed law counts
-        # only the part of it the cameras looked at).
-        speed *= 0.5 + 0.5 * max(0.0, math.cos(float(wrap_rad(chosen - pose.yaw_rad))))
+        if abs(float(wrap_rad(look - chosen))) <= math.radians(SECTOR_WIDTH_DEG):
+            # Going round something, the cameras turn toward the goal as far as they can while
+            # the way flown stays in view: what opens toward the goal (a corridor's turn, a
+            # wall's end) is seen before the vehicle is past it.
+            look = chosen + self._view_offset_rad(float(wrap_rad(goal_rad - chosen)))
+        # Beyond that the vehicle slows down while its heading differs from its way (the way
+        # itself was seen: the speed law counts only the part of it the cameras looked at).
+        turned_rad = float(wrap_rad(pose.yaw_rad - chosen))
+        off_rad = abs(turned_rad - self._view_offset_rad(turned_rad))
+        speed *= 0.5 + 0.5 * max(0.0, math.cos(off_rad))
         yaw_rate = self._yaw_rate(float(wrap_rad(look - pose.yaw_rad)))
         velocity = (speed * math.cos(chosen), speed * math.sin(chosen), vertical)
         return Decision(
@@ -472,34 +508,50 @@ class Planner:
         """A speed limit that lets a way through open: ``inf`` when none is needed.
 
         The turning buffer grows with speed, so a gap that is wide enough at walking pace is
-        closed to a vehicle flying at it. When the chosen way is blocked farther on and, at a
-        walking pace (:data:`_SLOW_FOR_GAP_M_S`, the faster first), a way would run clear (to
-        the goal or as far as the sensors see) with that pace's buffer, no more than 30 degrees
-        farther from the goal's direction, on the side the vehicle is committed to, slow to
-        that pace so that it opens.
+        closed to a vehicle flying at it. Slow to a walking pace (:data:`_SLOW_FOR_GAP_M_S`,
+        the faster first) when, with that pace's buffer, on the side the vehicle is committed
+        to, a way would open that
+
+        - runs clear (to the goal, as far as the sensors see, or a stop from full speed past
+          where the chosen way ends) while the chosen way ends within a stop from full speed,
+          at most 30 degrees farther from the goal's direction than the chosen one (the way
+          round the end of a wall, into a gap ahead); or
+        - leads at least a stop from full speed toward the goal, at least
+          :data:`_PASSING_RAD` nearer the goal's direction than the chosen way, while the
+          vehicle goes round something (a gap in the wall it is flying along).
         """
         clear_m = min(goal_m, self.max_range_m)
-        if chosen_free_m >= clear_m or buffer_m <= _BUFFER_M + _BUFFER_S * _SLOW_FOR_GAP_M_S[-1]:
+        if buffer_m <= _BUFFER_M + _BUFFER_S * _SLOW_FOR_GAP_M_S[-1]:
+            return math.inf
+        chosen_off = abs(float(wrap_rad(chosen_rad - goal_rad)))
+        # Within a stop from full speed of where the chosen way ends (farther off, the turn is
+        # not near yet).
+        ending = chosen_free_m < min(clear_m, self._look_m)
+        if not ending and chosen_off < 2.0 * _PASSING_RAD:
             return math.inf
         offsets = self.memory.offsets((pose.north_m, pose.east_m))
         gaps = gap_headings(offsets, self.clearance_m + _BUFFER_M, self._look_m)
         headings = np.concatenate([self._directions, gaps])
-        # Only the ways worth slowing down for are checked: at most 30 degrees farther from
-        # the goal's direction than the chosen one, on the committed side.
         goal_delta = wrap_rad(headings - goal_rad)
-        chosen_off = abs(float(wrap_rad(chosen_rad - goal_rad)))
-        worth = np.abs(goal_delta) <= chosen_off + math.radians(30.0)
+        if ending:
+            worth = np.abs(goal_delta) <= chosen_off + math.radians(30.0)
+            needed_m = min(clear_m, chosen_free_m + self._look_m)
+        else:
+            worth = np.abs(goal_delta) <= chosen_off - _PASSING_RAD
+            needed_m = min(clear_m, self._look_m)
         if self._side:
             worth &= np.sign(goal_delta) != -self._side
         if not worth.any():
             return math.inf
-        # Every pace slower than now in one pass: the same ways, each pace's buffer.
+        # Now and every pace slower in one pass: the same ways, each pace's buffer. Only ways
+        # that are closed now count (one open now was passed over for a cheaper one).
         paces = [v for v in _SLOW_FOR_GAP_M_S if buffer_m > _BUFFER_M + _BUFFER_S * v]
         ways = headings[worth]
-        buffers = np.repeat([_BUFFER_M + _BUFFER_S * v for v in paces], ways.size)
-        clear = self.free_m(pose, np.tile(ways, len(paces)), buffers) >= clear_m
-        for pace, opens in zip(paces, clear.reshape(len(paces), ways.size), strict=True):
-            if opens.any():
+        buffers = np.repeat([buffer_m] + [_BUFFER_M + _BUFFER_S * v for v in paces], ways.size)
+        free = self.free_m(pose, np.tile(ways, len(paces) + 1), buffers)
+        clear = (free >= needed_m).reshape(len(paces) + 1, ways.size)
+        for pace, opens in zip(paces, clear[1:], strict=True):
+            if (opens & ~clear[0]).any():
                 return pace
         return math.inf
 
@@ -522,6 +574,24 @@ class Planner:
         cost = MU_GOAL * np.abs(wrap_rad(headings - goal_rad))
         cost += MU_HEADING * np.abs(wrap_rad(headings - pose.yaw_rad))
         return float(headings[int(np.argmin(cost))])
+
+    def _view_offset_rad(self, wanted_rad: float) -> float:
+        """How far the heading may turn from the way flown (``wanted_rad``, signed, clockwise).
+
+        As far as keeps the way within the forward view (the bins the heads have measured,
+        contiguous from straight ahead) less the view margin (the swept corridor's half-angle a
+        stop away, and a bin); none for a view all round (nothing to gain) or before any scan.
+        """
+        view = self._in_view
+        if not view[0] or view.all():
+            return 0.0
+        width = math.radians(SECTOR_WIDTH_DEG)
+        right = int(np.argmin(view)) - 1  # bins right of ahead (clockwise) in view
+        left = int(np.argmin(view[:0:-1]))  # and left of it
+        # The way must stay in view: turning right by x puts it x left of ahead.
+        room_left = max(0.0, (left + 0.5) * width - self._view_margin_rad)
+        room_right = max(0.0, (right + 0.5) * width - self._view_margin_rad)
+        return max(-room_right, min(room_left, wanted_rad))
 
     def _yaw_rate(self, error_rad: float) -> float:
         limit = math.radians(self.config.max_yaw_rate_deg_s)
