@@ -354,6 +354,10 @@ async def test_px4_leaves_offboard_when_avoidd_stops_and_a_restarted_avoidd_wait
         last_s = [
             math.hypot(m.vx, m.vy) for m in track if m.time_boot_ms >= track[-1].time_boot_ms - 1000
         ]
+        # From 2 s into the window on (PX4's clock), braking from avoidd's speed is over.
+        after_2s = [
+            math.hypot(m.vx, m.vy) for m in track if m.time_boot_ms >= track[0].time_boot_ms + 2000
+        ]
         assert _state(daemon) == flies
         assert daemon.avoidance is not None and daemon.avoidance.sent == 0
         # The pilot hands over again: Position mode (ends PX4's pending return to OFFBOARD),
@@ -380,15 +384,18 @@ async def test_px4_leaves_offboard_when_avoidd_stops_and_a_restarted_avoidd_wait
         f"\nloss: PX4 left OFFBOARD {fallback_s:.2f} s after avoidd stopped, into "
         f"{fallback_mode}; restarted avoidd silent 4 s, PX4 in {sorted(modes)}, speed "
         f"{speeds[0]:.2f} m/s at first, at most {max(speeds):.2f}, in the last second at most "
-        f"{max(last_s):.2f} m/s; new goal: {prestreamed} prestream setpoints, PX4 in "
+        f"{max(last_s):.2f} m/s, from 2 s on at most {max(after_2s):.2f} m/s; new goal: "
+        f"{prestreamed} prestream setpoints, PX4 in "
         f"{sorted(prestream_modes)}; after OFFBOARD: {flying_state}; sticks' longest gap "
         f"{sticks.longest_gap_s:.2f} s; test {time.monotonic() - t0:.0f} s"
     )
     assert fallback_mode == "POSCTL"
     assert fallback_s <= 3.0
     assert modes == {"POSCTL"} and prestream_modes == {"POSCTL"}
-    # PX4 brakes from avoidd's last speed (how far it got depends on when the window starts)
-    # and holds: nothing flies the vehicle while avoidd is silent (it flew at 2 m/s). Holding
-    # in Position mode, PX4 itself drifts: up to 0.27 m/s idle, 0.48 m/s with both cores busy.
-    assert max(speeds) < 1.0
+    # PX4 brakes from avoidd's last speed (how far it got depends on when the window starts:
+    # a quick restart catches it at 2.4 m/s) and holds: nothing pushes the vehicle while avoidd
+    # is silent. Holding in Position mode, PX4 itself drifts: up to 0.27 m/s idle, 0.48 m/s
+    # with both cores busy.
+    assert max(speeds) <= max(speeds[0], 1.0) + 0.2
+    assert max(after_2s) < 1.0
     assert max(last_s) < 0.6
