@@ -587,3 +587,39 @@ def test_flying_along_a_wall_past_a_gap_too_narrow_at_speed_slows_down_and_takes
     through = planner.decide(2 * S, slow, goal, fresh=True)
     crossing_east = 2.3 * math.tan(math.radians(through.direction_deg or 90.0))
     assert -4.0 <= crossing_east <= -1.0, through  # the clearance (1.5 m) from both ends
+
+
+def test_first_unseen_is_the_near_flank_a_forward_camera_missed() -> None:
+    grid = VisibilityGrid()
+    # All round seen but the south-west quarter; then a camera of +-37.5 degrees looked west.
+    everywhere_but = np.full(SECTOR_COUNT, np.inf, dtype=np.float32)
+    everywhere_but[36:48] = np.nan  # bearings 180-235 degrees
+    grid.mark((0.0, 0.0), 0.0, everywhere_but, S, 20.0)
+    grid.mark((0.0, 0.0), -math.pi / 2, _scan({}, range(-7, 8)), S, 20.0)
+    assert grid.first_unseen((0.0, 0.0), 0.0, 1.5, 10.0, 0) is None
+    north, east = grid.first_unseen((0.0, 0.0), -math.pi / 2, 1.5, 10.0, 0) or (9.0, 9.0)
+    # Beside the vehicle, on the corridor's south flank.
+    assert north == pytest.approx(-1.5, abs=0.3) and -2.5 < east < 0.0
+    assert math.isfinite(grid.seen_distance((0.0, 0.0), np.array([-math.pi / 2]), 1.5, 10.0, 0)[0])
+
+
+def test_at_a_corridors_turn_the_camera_looks_at_the_near_side_of_the_way_on() -> None:
+    planner = _planner()
+    # Coming up a corridor, the vehicle looked all round but at its south-west; now its
+    # forward camera looks down the way on to the west (the goal's way), whose near south
+    # flank lies beside the vehicle, outside that view: the way stays closed until seen.
+    everywhere_but = np.full(SECTOR_COUNT, np.inf, dtype=np.float32)
+    everywhere_but[36:48] = np.nan  # bearings 180-235 degrees
+    planner.observe_scan(everywhere_but, int(0.5 * S), _pose(0.5))
+    west = -math.pi / 2
+    planner.observe_scan(_scan({}, range(-7, 8)), S, _pose(1.0, yaw=west))
+    goal = Goal(0.0, -20.0, 2.0)
+    decision = planner.decide(int(1.05 * S), _pose(1.05, yaw=west), goal, fresh=True)
+    assert decision.direction_deg is None or abs(decision.direction_deg - 270.0) > 2.0
+    # The camera turns to that flank (left, toward the south-west), not along the way.
+    assert decision.yaw_rate_rad_s < -0.5
+    # Once it has looked there, the way on opens.
+    south_west = math.radians(-150.0)
+    planner.observe_scan(_scan({}, range(-7, 8)), int(1.1 * S), _pose(1.1, yaw=south_west))
+    decision = planner.decide(int(1.15 * S), _pose(1.15, yaw=south_west), goal, fresh=True)
+    assert decision.state == "moving" and decision.direction_deg == pytest.approx(270.0)

@@ -79,6 +79,8 @@ _BACK_OUT_AFTER_NS = 300_000_000
 """A way back must stay the choice this long before the vehicle turns back (it brakes first)."""
 _TURN_BACK_M_S = 0.5
 """Slower than this, turning back needs no braking first."""
+_TURN_BACK_RAD = math.radians(100.0)
+"""A way this far from the vehicle's velocity turns it back on itself (it brakes first)."""
 
 
 @dataclass(frozen=True)
@@ -454,7 +456,7 @@ class Planner:
                 self._side_changes += 1
             self._side = side
         moving_m_s = math.hypot(pose.north_m_s, pose.east_m_s)
-        if moving_m_s > _TURN_BACK_M_S and abs(float(wrap_rad(chosen - along))) > _ONWARD_RAD:
+        if moving_m_s > _TURN_BACK_M_S and abs(float(wrap_rad(chosen - along))) > _TURN_BACK_RAD:
             # The way chosen turns the vehicle back on itself (every way on looks closed):
             # brake first, and turn back only if that stays so (one frame's closure would
             # otherwise send the vehicle back for a cycle, then on again).
@@ -561,19 +563,33 @@ class Planner:
         """Where to point the cameras: the best way known obstacles leave open.
 
         That is the chosen way unless the way the planner would take, were unseen space free,
-        differs: then the cameras turn there to look (a forward camera would otherwise only
-        ever turn as far as it sees).
+        differs: then the cameras turn to look at the first part of that way's corridor they
+        have not seen (a forward camera would otherwise only ever turn as far as it sees; and
+        at a corridor's turn the near side of the way on lies beside the vehicle, outside a
+        view pointed along that way).
         """
         if self.config.unknown != "blocked":
             return chosen_rad
+        enter = max(self.config.acceptance_radius_m, 1.0)
         free = self.obstacle_free_m(pose, self._directions, buffer_m)
-        open_ways = np.flatnonzero(free >= max(self.config.acceptance_radius_m, 1.0))
+        open_ways = np.flatnonzero(free >= enter)
         if open_ways.size == 0:
             return chosen_rad
         headings = self._directions[open_ways]
         cost = MU_GOAL * np.abs(wrap_rad(headings - goal_rad))
         cost += MU_HEADING * np.abs(wrap_rad(headings - pose.yaw_rad))
-        return float(headings[int(np.argmin(cost))])
+        pick = int(np.argmin(cost))
+        best = float(headings[pick])
+        if abs(float(wrap_rad(best - chosen_rad))) < 1e-9:
+            return best
+        since_ns = pose.t_ns - int(self.config.memory_s * 1e9)
+        reach_m = min(self._look_m, float(free[open_ways[pick]]))
+        unseen = self.visibility.first_unseen(
+            (pose.north_m, pose.east_m), best, self.clearance_m, reach_m, since_ns
+        )
+        if unseen is None:
+            return best
+        return math.atan2(unseen[1] - pose.east_m, unseen[0] - pose.north_m)
 
     def _view_offset_rad(self, wanted_rad: float) -> float:
         """How far the heading may turn from the way flown (``wanted_rad``, signed, clockwise).

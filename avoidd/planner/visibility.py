@@ -99,6 +99,33 @@ class VisibilityGrid:
         rows, columns = rows[inside], columns[inside]
         self.seen_ns[rows, columns] = np.maximum(self.seen_ns[rows, columns], t_ns)
 
+    def _unseen(
+        self,
+        north_east_m: tuple[float, float],
+        headings_rad: Array,
+        clearance_m: float,
+        look_m: float,
+        since_ns: int,
+    ) -> tuple[Array, Array, npt.NDArray[np.bool_]]:
+        """The swept corridors' sample points, (K, S, L, 2), and which of them are unseen."""
+        origin = np.asarray(north_east_m, dtype=np.float64)
+        self._follow(origin)
+        along = np.arange(0.0, look_m + clearance_m, self.cell_m)
+        lateral = np.linspace(-clearance_m, clearance_m, 5)
+        unit = np.stack([np.cos(headings_rad), np.sin(headings_rad)], axis=1)  # (K, 2)
+        normal = np.stack([-unit[:, 1], unit[:, 0]], axis=1)
+        points = (
+            origin
+            + along[None, :, None, None] * unit[:, None, None, :]
+            + lateral[None, None, :, None] * normal[:, None, None, :]
+        )  # (K, S, L, 2)
+        rows, columns, inside = self._index(points)
+        unseen = (self.seen_ns[rows, columns] < since_ns) | ~inside
+        # The vehicle's own disc (within the clearance of where it stands) is where it is.
+        own = (along[None, :, None] ** 2 + lateral[None, None, :] ** 2) <= clearance_m**2
+        unseen &= ~own
+        return along, points, unseen
+
     def seen_distance(
         self,
         north_east_m: tuple[float, float],
@@ -119,23 +146,35 @@ class VisibilityGrid:
         Returns:
             (K,) distances the vehicle can go before its disc reaches an unseen cell.
         """
-        origin = np.asarray(north_east_m, dtype=np.float64)
-        self._follow(origin)
-        along = np.arange(0.0, look_m + clearance_m, self.cell_m)
-        lateral = np.linspace(-clearance_m, clearance_m, 5)
-        unit = np.stack([np.cos(headings_rad), np.sin(headings_rad)], axis=1)  # (K, 2)
-        normal = np.stack([-unit[:, 1], unit[:, 0]], axis=1)
-        points = (
-            origin
-            + along[None, :, None, None] * unit[:, None, None, :]
-            + lateral[None, None, :, None] * normal[:, None, None, :]
-        )  # (K, S, L, 2)
-        rows, columns, inside = self._index(points)
-        unseen = (self.seen_ns[rows, columns] < since_ns) | ~inside
-        # The vehicle's own disc (within the clearance of where it stands) is where it is.
-        own = (along[None, :, None] ** 2 + lateral[None, None, :] ** 2) <= clearance_m**2
-        unseen &= ~own
+        along, _, unseen = self._unseen(north_east_m, headings_rad, clearance_m, look_m, since_ns)
         first = np.argmax(unseen.any(axis=2), axis=1)
         blocked = unseen.any(axis=(1, 2))
         distance = np.where(blocked, np.maximum(along[first] - clearance_m, 0.0), np.inf)
         return np.asarray(distance, dtype=np.float64)
+
+    def first_unseen(
+        self,
+        north_east_m: tuple[float, float],
+        heading_rad: float,
+        clearance_m: float,
+        look_m: float,
+        since_ns: int,
+    ) -> tuple[float, float] | None:
+        """Where the swept corridor along one heading first reaches an unseen cell.
+
+        Beside a forward camera's view that is often right next to the vehicle (the near
+        side of a corridor's turn): the cameras look there to open the way.
+
+        Returns:
+            The north and east of the middle of the nearest unseen samples, or None when the
+            corridor was all seen.
+        """
+        _, points, unseen = self._unseen(
+            north_east_m, np.array([heading_rad]), clearance_m, look_m, since_ns
+        )
+        row = unseen[0].any(axis=1)
+        if not row.any():
+            return None
+        step = int(np.argmax(row))
+        middle = points[0, step][unseen[0, step]].mean(axis=0)
+        return float(middle[0]), float(middle[1])
