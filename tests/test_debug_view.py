@@ -270,7 +270,13 @@ def test_endpoints_over_loopback(tmp_path: Path) -> None:
         (head,) = stats["heads"]
         assert head["name"] == "front"
         assert 3.0 < head["captured_fps"] < 15.0, head
-        assert 0.0 < head["processed_fps"] <= head["captured_fps"] + 1.0, head
+        # Over one window, frames captured before it may be processed in it (at most three in
+        # flight: one waiting in the slot, one matching, one in the rest of the pipeline); the
+        # counts never invent a frame.
+        assert head["processed_fps"] > 0.0, head
+        assert head["processed"] + head["skipped"] <= head["captured"], head
+        in_flight_fps = 3.0 / stats["interval_s"]
+        assert head["processed_fps"] <= head["captured_fps"] + in_flight_fps, head
         assert head["skipped_fps"] >= 0.0
         assert set(head["stage_ms"]) == {
             "rectify",

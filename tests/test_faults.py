@@ -879,6 +879,14 @@ async def _peer_gone(run: LinkRun) -> None:
 
 
 async def _reboot(run: LinkRun) -> None:
+    # A reboot shows as the streams' boot clock going back, or as every delivering stream
+    # going silent: wait until each accepted stream has delivered (on a loaded machine the
+    # acknowledgements can come before the first messages; a stream accepted but never
+    # delivered is one the autopilot has nothing for, and is not watched).
+    vehicle = run.daemon.vehicle
+    assert await wait_for(
+        lambda: all(r.last_ns >= r.acked_ns for r in vehicle.requests if r.acked), REACT_S
+    )
     run.autopilot.reboot()
     assert await wait_for(lambda: run.daemon.vehicle.reboots == 1, REACT_S)
 

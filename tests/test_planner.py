@@ -603,23 +603,35 @@ def test_first_unseen_is_the_near_flank_a_forward_camera_missed() -> None:
     assert math.isfinite(grid.seen_distance((0.0, 0.0), np.array([-math.pi / 2]), 1.5, 10.0, 0)[0])
 
 
+def _wall_north_2m(scan: np.ndarray, yaw_deg: float) -> np.ndarray:
+    """``scan`` (taken at ``yaw_deg``) with the readings of a wall along north = 2 m."""
+    for i in range(SECTOR_COUNT):
+        cos = math.cos(math.radians(yaw_deg + i * 5.0))
+        if not np.isnan(scan[i]) and cos > 0.1:
+            scan[i] = min(float(scan[i]), 2.0 / cos)
+    return scan
+
+
 def test_at_a_corridors_turn_the_camera_looks_at_the_near_side_of_the_way_on() -> None:
     planner = _planner()
-    # Coming up a corridor, the vehicle looked all round but at its south-west; now its
-    # forward camera looks down the way on to the west (the goal's way), whose near south
-    # flank lies beside the vehicle, outside that view: the way stays closed until seen.
+    # At a corridor's turn, a wall 2 m ahead (north): the vehicle looked all round but at its
+    # south-west, and its forward camera looks down the way on to the west (the goal's way),
+    # whose near south flank lies beside the vehicle, outside that view: that way stays
+    # closed, and the way chosen turns back (east or south-east).
     everywhere_but = np.full(SECTOR_COUNT, np.inf, dtype=np.float32)
     everywhere_but[36:48] = np.nan  # bearings 180-235 degrees
-    planner.observe_scan(everywhere_but, int(0.5 * S), _pose(0.5))
+    planner.observe_scan(_wall_north_2m(everywhere_but, 0.0), int(0.5 * S), _pose(0.5))
     west = -math.pi / 2
-    planner.observe_scan(_scan({}, range(-7, 8)), S, _pose(1.0, yaw=west))
+    ahead = _wall_north_2m(_scan({}, range(-7, 8)), -90.0)
+    planner.observe_scan(ahead, S, _pose(1.0, yaw=west))
     goal = Goal(0.0, -20.0, 2.0)
     decision = planner.decide(int(1.05 * S), _pose(1.05, yaw=west), goal, fresh=True)
-    assert decision.direction_deg is None or abs(decision.direction_deg - 270.0) > 2.0
-    # The camera turns to that flank (left, toward the south-west), not along the way.
+    assert decision.direction_deg is not None and abs(decision.direction_deg - 270.0) > 90.0
+    # The camera turns to that flank (left, toward the south-west), not down the way on.
     assert decision.yaw_rate_rad_s < -0.5
     # Once it has looked there, the way on opens.
     south_west = math.radians(-150.0)
-    planner.observe_scan(_scan({}, range(-7, 8)), int(1.1 * S), _pose(1.1, yaw=south_west))
+    looked = _wall_north_2m(_scan({}, range(-7, 8)), -150.0)
+    planner.observe_scan(looked, int(1.1 * S), _pose(1.1, yaw=south_west))
     decision = planner.decide(int(1.15 * S), _pose(1.15, yaw=south_west), goal, fresh=True)
     assert decision.state == "moving" and decision.direction_deg == pytest.approx(270.0)

@@ -81,6 +81,9 @@ _TURN_BACK_M_S = 0.5
 """Slower than this, turning back needs no braking first."""
 _TURN_BACK_RAD = math.radians(100.0)
 """A way this far from the vehicle's velocity turns it back on itself (it brakes first)."""
+_LOOK_ASIDE_RAD = math.radians(90.0)
+"""When the way chosen is this far from the best way were unseen ground free (the vehicle is
+about to turn away from it), the cameras look at the first unseen part of that best way."""
 
 
 @dataclass(frozen=True)
@@ -580,7 +583,7 @@ class Planner:
         cost += MU_HEADING * np.abs(wrap_rad(headings - pose.yaw_rad))
         pick = int(np.argmin(cost))
         best = float(headings[pick])
-        if abs(float(wrap_rad(best - chosen_rad))) < 1e-9:
+        if abs(float(wrap_rad(best - chosen_rad))) <= _LOOK_ASIDE_RAD:
             return best
         since_ns = pose.t_ns - int(self.config.memory_s * 1e9)
         reach_m = min(self._look_m, float(free[open_ways[pick]]))
