@@ -276,8 +276,8 @@ async def _take_off(gcs: GroundStation) -> bool:
         )
         if climbed is not None:
             return True
-        await gcs.command(400, 0.0)  # disarm on the ground, then start over
-        await asyncio.sleep(1.0)
+        await gcs.disarm_to_retry()  # by force: stuck at 0.3 m PX4 is "not landed"
+        await asyncio.sleep(2.0)
     return False
 
 

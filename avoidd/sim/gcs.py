@@ -34,6 +34,7 @@ GCS_COMPONENT_ID = 190  # MAV_COMP_ID_MISSIONPLANNER
 MAV_TYPE_GCS = 6
 MAV_PARAM_TYPE_REAL32 = 9
 MAV_PARAM_TYPE_INT32 = 6
+_FORCE_DISARM = 21196.0  # MAV_CMD_COMPONENT_ARM_DISARM param 2: disarm even when flying
 
 
 @dataclass
@@ -252,6 +253,15 @@ class GroundStation:
                 return True
             await asyncio.sleep(1.0)
         return False
+
+    async def disarm_to_retry(self) -> int | None:
+        """Disarm now, in the air too (a simulated vehicle only: it drops where it is).
+
+        A take-off that stalls a few decimetres up (PX4 SITL on a loaded machine: TAKEOFF mode,
+        0.3 m) is "not landed", so a plain disarm is denied and arming again changes nothing;
+        MAV_CMD_COMPONENT_ARM_DISARM's force value (param 2 = 21196) ends it.
+        """
+        return await self.command(400, 0.0, _FORCE_DISARM)
 
     async def upload_mission(self, items: Sequence[MissionItem], timeout_s: float = 15.0) -> int:
         """Upload a mission with the mission protocol, answering the autopilot's requests.

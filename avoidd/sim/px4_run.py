@@ -184,7 +184,8 @@ class Px4Run(ExternalRun):
         self.estimator_s = await sitl.wait_estimator(120.0)
         await self._wait_ready(60.0)
         # A take-off that never leaves the ground is tried again (seen now and then, idle and
-        # under load: accepted, TAKEOFF mode, no climb; PX4 then disarms on the ground).
+        # under load: accepted, TAKEOFF mode, no climb, or stuck at 0.3 m where PX4 denies a
+        # disarm as "not landed": the retry disarms by force, the vehicle being simulated).
         for attempt in range(3):
             if not await gcs.arm(retry_s=60.0):
                 raise LinkError("PX4 would not arm within 60 s")
@@ -199,8 +200,9 @@ class Px4Run(ExternalRun):
             except LinkError:
                 if attempt == 2:
                     raise
-                logger.warning("PX4 did not climb; arming and taking off again")
-                await gcs.command(400, 0.0)  # disarm (on the ground), then start over
+                logger.warning("PX4 did not climb; disarming, arming and taking off again")
+                await gcs.disarm_to_retry()
+                await asyncio.sleep(2.0)  # down and still before arming again
         assert self.daemon is not None
         self.home_up_m = self.daemon.vehicle.home_up_m or 0.0
         if self.mode == "planner":
