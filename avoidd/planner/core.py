@@ -566,10 +566,11 @@ class Planner:
         """Where to point the cameras: the best way known obstacles leave open.
 
         That is the chosen way unless the way the planner would take, were unseen space free,
-        differs: then the cameras turn to look at the first part of that way's corridor they
-        have not seen (a forward camera would otherwise only ever turn as far as it sees; and
-        at a corridor's turn the near side of the way on lies beside the vehicle, outside a
-        view pointed along that way).
+        differs: then the cameras turn there to look (a forward camera would otherwise only
+        ever turn as far as it sees). When the chosen way turns more than
+        :data:`_LOOK_ASIDE_RAD` from it (the vehicle is about to back out), they look at the
+        first part of that way's corridor they have not seen instead: at a corridor's turn
+        the near side of the way on lies beside the vehicle, outside a view pointed along it.
         """
         if self.config.unknown != "blocked":
             return chosen_rad
