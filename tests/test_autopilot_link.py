@@ -6,6 +6,7 @@ from __future__ import annotations
 import asyncio
 import contextlib
 import itertools
+import logging
 import math
 import sys
 import time
@@ -218,6 +219,29 @@ async def test_a_quick_reboot_within_the_link_timeout_gets_the_streams_back(
         assert "avoidd: autopilot rebooted" in texts
         print(f"streams back {back_s:.2f} s after the reboot")
         assert back_s < 3.0
+    finally:
+        await stop(daemon, task)
+        await autopilot.stop()
+
+
+async def test_a_stream_accepted_and_then_forgotten_is_asked_for_again(
+    tmp_path: Path, caplog: pytest.LogCaptureFixture
+) -> None:
+    # An autopilot that reboots between acknowledging ATTITUDE and sending it has forgotten
+    # the request; the other streams deliver, so nothing looks like a reboot.
+    caplog.set_level(logging.INFO, logger="avoidd.mavlink.vehicle")
+    autopilot = MockAutopilot(system_id=7, forget_once={"ATTITUDE"})
+    daemon, task = await udp_pair(tmp_path, autopilot, link_timeout_s=3.0)
+    try:
+        vehicle = daemon.vehicle
+        assert await wait_for(lambda: vehicle.link_up and vehicle.streams_acknowledged, 10.0)
+        assert not autopilot.forget_once  # the first ATTITUDE request was accepted, then lost
+        assert await wait_for(lambda: len(vehicle.attitude) > 5, 10.0)
+        requests = [m for m in autopilot.of_type("COMMAND_LONG") if int(m.param1) == 30]
+        assert len(requests) >= 2
+        assert vehicle.quiet_streams >= 1 and vehicle.reboots == 0
+        said = [r.getMessage() for r in caplog.records if "never sent" in r.getMessage()]
+        assert said and "ATTITUDE" in said[0]
     finally:
         await stop(daemon, task)
         await autopilot.stop()

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import itertools
 import math
 from pathlib import Path
 
@@ -260,3 +261,56 @@ async def test_vehicle_with_a_fixed_system_id_never_adopts_another() -> None:
     for decoded in link.codec.decode(sender.pack(message)):
         vehicle.handle(decoded, 0)
     assert vehicle.system_id == 9 and vehicle.mode is None and vehicle.ignored[2] == 1
+
+
+class _OpenLink:
+    """The link as the vehicle sees it: connected, recording what is sent."""
+
+    connected = True
+
+    def __init__(self) -> None:
+        self.codec = mav.Codec(1, 196)
+        self.sent: list[bytes] = []
+
+    def send(self, data: bytes) -> bool:
+        self.sent.append(data)
+        return True
+
+    def subscribe(self, handler: object) -> None:
+        pass
+
+
+def test_an_accepted_stream_that_never_delivers_is_asked_again_less_and_less_often() -> None:
+    # DISTANCE_SENSOR accepted by an autopilot without a rangefinder: asked again 1 s after it
+    # was accepted, then after 2, 4, ... up to 64 s; never taken for a reboot.
+    link = _OpenLink()
+    config = MavlinkConfig(connection="udpout:127.0.0.1:9")
+    vehicle = Vehicle(link, config, lambda severity, text, key=None: None)  # type: ignore[arg-type]
+    vehicle.system_id, vehicle.link_up = 1, True
+    quiet = next(r for r in vehicle.requests if r.name == "DISTANCE_SENSOR")
+    step_ns, s_ns = 100_000_000, 1_000_000_000
+    asked_s: list[float] = []
+    for t_ns in range(0, 300 * s_ns, step_ns):
+        vehicle.last_heartbeat_ns = t_ns
+        for other in vehicle.requests:
+            if other is not quiet and other.acked:
+                other.last_ns = t_ns  # the other streams deliver
+        before = quiet.quiet_asks
+        vehicle.tick(t_ns)
+        if quiet.quiet_asks > before:
+            asked_s.append(t_ns / s_ns)
+        pending = vehicle._pending
+        if pending is not None:  # the autopilot accepts each request at once
+            pending.acked, pending.acked_ns = True, t_ns
+            vehicle._pending = None
+    gaps_s = [round(b - a) for a, b in itertools.pairwise(asked_s)]
+    assert gaps_s[:5] == [2, 4, 8, 16, 32] and len(gaps_s) >= 7
+    assert set(gaps_s[5:]) == {64}
+    assert vehicle.reboots == 0 and vehicle.silent_streams == 0
+    assert vehicle.quiet_streams == len(asked_s)
+    # Once it delivers, the back-off starts over.
+    autopilot = mav.Codec(1, 1)
+    reading = autopilot.build("DISTANCE_SENSOR", 0, 10, 4000, 150, 0, 0, 25, 0)
+    for decoded in link.codec.decode(autopilot.pack(reading)):
+        vehicle.handle(decoded, 300 * s_ns)
+    assert quiet.quiet_asks == 0 and quiet.last_ns == 300 * s_ns

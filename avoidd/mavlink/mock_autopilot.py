@@ -145,6 +145,8 @@ class MockAutopilot:
         utc: Whether SYSTEM_TIME carries a UTC time (as with a GPS fix).
         refuse: Message names whose stream requests it answers with MAV_RESULT_UNSUPPORTED.
         acknowledge: Whether it answers commands at all.
+        forget_once: Message names whose first accepted stream request it then forgets (as an
+            autopilot that reboots between the acknowledgement and the first message).
         fixed_streams: Streams at fixed rates (msg name -> Hz), sent whether asked or not.
         rangefinder_m: Distance its downward rangefinder reports.
         position_ned: The local position it reports (north, east, down; metres).
@@ -167,6 +169,7 @@ class MockAutopilot:
     utc: bool = True
     refuse: set[str] = field(default_factory=set)
     acknowledge: bool = True
+    forget_once: set[str] = field(default_factory=set)
     fixed_streams: dict[str, float] = field(default_factory=dict)
     rangefinder_m: float = 1.5
     position_ned: tuple[float, float, float] = (0.0, 0.0, -1.5)
@@ -325,7 +328,9 @@ class MockAutopilot:
             name = mav.message_name(msg_id)
             if name not in self.refuse and self.stream_message(msg_id) is not None:
                 result = mav.MAV_RESULT_ACCEPTED
-                if interval_us < 0:
+                if name in self.forget_once:
+                    self.forget_once.discard(name)
+                elif interval_us < 0:
                     self.streams.pop(msg_id, None)
                 else:
                     self.streams[msg_id] = max(interval_us, 1000.0) / 1e6

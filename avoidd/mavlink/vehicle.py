@@ -31,6 +31,9 @@ _REQUEST_RETRY_S = 1.0
 _SILENT_MIN_NS = 1_000_000_000
 """An accepted stream silent for this long (or three intervals) is asked for again: an
 autopilot that rebooted within the link timeout has forgotten every request."""
+_QUIET_BACKOFF_MAX = 6
+"""An accepted stream that never delivered is asked again after its silent time, then twice
+as long each time, up to 2**6 times it (64 s for most streams)."""
 _NOT_AUTOPILOTS = {mav.MAV_TYPE_GCS, mav.MAV_TYPE_ONBOARD_CONTROLLER}
 _ORIGIN_RETRY_NS = 2_000_000_000
 _GPS_GLOBAL_ORIGIN = 49
@@ -79,6 +82,8 @@ class StreamRequest:
         attempts: Requests sent since the last answer.
         acked_ns: When it was accepted (local monotonic).
         last_ns: When the last message of the stream arrived.
+        quiet_asks: Times it was asked again because it was accepted but never delivered
+            (the back-off step; reset when it delivers).
     """
 
     name: str
@@ -89,6 +94,7 @@ class StreamRequest:
     attempts: int = 0
     acked_ns: int = 0
     last_ns: int = 0
+    quiet_asks: int = 0
 
     def silent_ns(self) -> int:
         """How long it may stay silent once accepted before it is asked for again."""
@@ -147,6 +153,8 @@ class Vehicle:
         """Autopilot reboots seen (boot clock going back, or every stream silent)."""
         self.silent_streams = 0
         """Streams asked for again after going silent."""
+        self.quiet_streams = 0
+        """Requests sent again for accepted streams that never delivered."""
         self.invalid: Counter[str] = Counter()
         """Messages dropped because a value was not a finite number, by type."""
         self.requests = [
@@ -203,6 +211,7 @@ class Vehicle:
         for request in self.requests:
             if request.name == kind:
                 request.last_ns = received_ns
+                request.quiet_asks = 0
         handler = getattr(self, f"_on_{kind.lower()}", None)
         if handler is not None:
             handler(message, received_ns)
@@ -445,7 +454,7 @@ class Vehicle:
         self.home_up_m = None
         for request in self.requests:
             request.acked = request.refused = False
-            request.attempts = 0
+            request.attempts = request.quiet_asks = 0
         self._pending = None
 
     def _check_silent_streams(self, now_ns: int) -> None:
@@ -466,6 +475,33 @@ class Vehicle:
                 self.system_id,
                 request.name,
                 (now_ns - max(request.last_ns, request.acked_ns)) / 1e9,
+            )
+        self._ask_again_for_quiet_streams(now_ns)
+
+    def _ask_again_for_quiet_streams(self, now_ns: int) -> None:
+        """Ask again, with back-off, for accepted streams that never delivered.
+
+        An autopilot that reboots between acknowledging a request and sending the first
+        message has forgotten it; one that accepts a stream it has nothing for (DISTANCE_SENSOR
+        without a rangefinder) is asked again rarely and harmlessly.
+        """
+        for request in self.requests:
+            if not request.acked or request.last_ns >= request.acked_ns:
+                continue
+            wait_ns = request.silent_ns() << min(request.quiet_asks, _QUIET_BACKOFF_MAX)
+            if now_ns - request.acked_ns <= wait_ns:
+                continue
+            request.acked = False
+            request.attempts = 0
+            request.quiet_asks += 1
+            self.quiet_streams += 1
+            logger.log(
+                logging.INFO if request.quiet_asks == 1 else logging.DEBUG,
+                "vehicle %s: %s accepted %.1f s ago but never sent; asking again "
+                "(then less and less often)",
+                self.system_id,
+                request.name,
+                (now_ns - request.acked_ns) / 1e9,
             )
 
     def _request_streams(self, now_s: float) -> None:
