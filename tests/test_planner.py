@@ -490,6 +490,48 @@ def test_within_the_clearance_of_a_wall_no_way_leads_nearer_to_it() -> None:
     assert planner.obstacle_free_m(pose, np.radians([0.0]))[0] == np.inf
 
 
+@pytest.mark.parametrize(
+    ("wall_east_m", "away_min_m_s", "away_max_m_s"),
+    [(1.6, 0.0, 0.0), (1.5, 0.0, 0.0), (1.3, 0.25, 0.35), (1.0, 0.75, 0.75), (0.8, 0.75, 0.75)],
+)
+def test_inside_the_clearance_of_a_wall_flown_along_the_setpoint_leads_away_from_it(
+    wall_east_m: float, away_min_m_s: float, away_max_m_s: float
+) -> None:
+    # Flying north along a wall on the right, with the goal straight on. An autopilot that
+    # drifts toward the wall (PX4 SITL under load: 0.2 m/s off its setpoint for seconds) is
+    # brought back: within the 1.5 m clearance by more than 5 cm, a speed away from the wall
+    # of 2 m/s per metre inside, at most 0.75 m/s; none outside the clearance.
+    planner = _planner(unknown="free", memory_s=10.0)
+    along = np.arange(-5.0, 40.0, 0.1)
+    wall = np.stack([along, np.full_like(along, wall_east_m)], axis=1)
+    planner.memory.north_east = wall
+    planner.memory.t_ns = np.full(len(wall), S, dtype=np.int64)
+    pose = Pose(S, 0.0, 0.0, -2.0, 0.0, 2.0, 0.0)
+    decision = planner.decide(S, pose, Goal(30.0, 0.0, 2.0), fresh=True)
+    assert decision.state == "moving"
+    north_m_s, east_m_s, _ = decision.velocity_ned
+    away_m_s = -east_m_s
+    assert away_min_m_s - 1e-6 <= away_m_s <= away_max_m_s + 1e-6, decision
+    assert north_m_s > 1.0  # it still flies on along the wall
+    assert math.hypot(north_m_s, east_m_s) <= planner.config.max_speed_m_s + 1e-9
+    # The same wall on the left: the same speed, the other way.
+    planner.memory.north_east = wall * [1.0, -1.0]
+    mirrored = planner.decide(
+        2 * S, Pose(2 * S, 0.0, 0.0, -2.0, 0.0, 2.0, 0.0), Goal(30.0, 0.0, 2.0), True
+    )
+    assert mirrored.velocity_ned[1] == pytest.approx(away_m_s, abs=1e-6)
+
+
+def test_between_two_walls_nearer_than_the_clearance_nothing_pushes_either_way() -> None:
+    # A corridor narrower than the clearance: the pushes cancel, the vehicle flies its middle.
+    planner = _planner(unknown="free", memory_s=10.0)
+    along = np.arange(-5.0, 40.0, 0.1)
+    wall = np.stack([along, np.full_like(along, 1.2)], axis=1)
+    planner.memory.north_east = np.concatenate([wall, wall * [1.0, -1.0]])
+    planner.memory.t_ns = np.full(2 * len(wall), S, dtype=np.int64)
+    assert planner.back_away_m_s(Pose(S, 0.0, 0.0, -2.0, 0.0, 1.0, 0.0)) == (0.0, 0.0)
+
+
 def test_a_gap_that_opens_only_below_walking_pace_slows_the_vehicle_further() -> None:
     # As the 4 m gap above, 3.78 m wide, 4 m ahead (3.72 m across the line through its middle,
     # 10 degrees off): with the buffer at 1 m/s (0.4 m) the clearance (1.9 m each side) does

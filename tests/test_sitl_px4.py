@@ -256,12 +256,24 @@ async def test_px4_blocks_motion_into_bins_avoidd_reports_unknown_after_its_came
     assert total_travel > 4.0
 
 
-# The planner's closed loop on PX4 (OFFBOARD round the wall, then Position mode stops the
-# setpoints) is measured with `avoidd sim px4 sitl/px4/wall-around.yaml`, not tested here yet:
-# on this 2-core machine its clearance is not held under CPU load (edge clearance 0.12 m with
-# one core busy before the speed law counted the scan's age; with it, at load average 4-7:
-# 1.10, 0.34 and 0.18 m: sliding along the wall face inside the clearance past its end), which
-# is issue 22's open problem, not a flaky test. The test: `git show 4af86ab:tests/test_sitl_px4.py`.
+async def test_px4_offboard_planner_flies_round_the_wall_and_yields_to_the_pilot(
+    px4_sitl_dir: Path,
+) -> None:
+    """avoidd prestreams, the GCS switches to OFFBOARD, avoidd flies round the wall to the goal
+    with its clearance kept; Position mode then stops its setpoints at once."""
+    t0 = time.monotonic()
+    run = Px4Run(load_scenario(SCENARIOS / "wall-around.yaml"), px4_sitl_dir, mode="planner")
+    summary = await run.run()
+    print(
+        f"\nplanner: {summary.as_json()}; OFFBOARD {run.offboard_s} s after the request; "
+        f"setpoints after Position mode {run.setpoints_after_release}; "
+        f"test {time.monotonic() - t0:.0f} s"
+    )
+    # The scenario's criteria: no collision, edge clearance >= 0.5 m, goal within 60 s.
+    assert summary.passed, summary.failures
+    assert not summary.collided and summary.min_clearance_m >= 0.5
+    assert run.offboard_s is not None
+    assert run.setpoints_after_release == 0
 
 
 async def _take_off(gcs: GroundStation) -> bool:

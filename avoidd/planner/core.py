@@ -74,6 +74,10 @@ _TOWARD_RAD = math.radians(88.0)
 """Ways this close to the side of what is within the clearance bring the vehicle nearer."""
 _ONE_SIDED = 0.5
 """How one-sided the points within the clearance must be for that side to count."""
+_BACK_AWAY_GAIN = 2.0
+"""Speed away from what the vehicle is within the clearance of, m/s per metre inside."""
+_BACK_AWAY_MAX_M_S = 0.75
+"""At most this fast (ArduPilot's ``AVOID_BACKUP_SPD`` default)."""
 _ARRIVED_ALTITUDE_M = 0.5
 _BACK_OUT_AFTER_NS = 300_000_000
 """A way back must stay the choice this long before the vehicle turns back (it brakes first)."""
@@ -304,15 +308,50 @@ class Planner:
         # clearance close, toward the side it is on as a whole (a wall's points within the
         # clearance, weighted by how far in; none when they surround the vehicle evenly, as a
         # corridor narrower than the clearance does).
-        within = ranges_m < self.clearance_m
-        if within.any():
-            depth = (self.clearance_m - ranges_m[within]) / ranges_m[within]
-            push = (depth[:, None] * offsets[within]).sum(axis=0)
-            if float(np.hypot(*push)) >= _ONE_SIDED * float(depth.sum() * nearest_m):
-                toward = math.atan2(float(push[1]), float(push[0]))
-                closer = np.abs(wrap_rad(headings_rad - toward)) < _TOWARD_RAD
-                free = np.where(closer, 0.0, free)
+        toward = self._side_within(offsets, ranges_m, self.clearance_m)
+        if toward is not None:
+            closer = np.abs(wrap_rad(headings_rad - toward)) < _TOWARD_RAD
+            free = np.where(closer, 0.0, free)
         return free
+
+    @staticmethod
+    def _side_within(offsets: np.ndarray, ranges_m: np.ndarray, within_m: float) -> float | None:
+        """The bearing (radians) of the side the points nearer than ``within_m`` are on.
+
+        The points are weighted by how far in they are; None when none is that near, or when
+        they surround the vehicle evenly (a corridor narrower than that).
+        """
+        within = ranges_m < within_m
+        if not within.any():
+            return None
+        depth = (within_m - ranges_m[within]) / ranges_m[within]
+        push = (depth[:, None] * offsets[within]).sum(axis=0)
+        if float(np.hypot(*push)) < _ONE_SIDED * float(depth.sum() * np.min(ranges_m)):
+            return None
+        return math.atan2(float(push[1]), float(push[0]))
+
+    def back_away_m_s(self, pose: Pose) -> tuple[float, float]:
+        """A velocity (north, east) away from remembered obstacles the vehicle is too near.
+
+        An autopilot does not follow its setpoint exactly (a loaded or lagging controller
+        drifts a few tenths of a metre per second off it), so a vehicle flying along a wall at
+        its clearance drifts inside it with nothing to bring it back: the ways toward the wall
+        are closed, the way along it is not. Within the clearance by more than a few
+        centimetres, this adds a speed away from that side that grows with the depth, up to
+        :data:`_BACK_AWAY_MAX_M_S` (as ArduPilot backs away at ``AVOID_BACKUP_SPD``).
+        """
+        offsets = self.memory.offsets((pose.north_m, pose.east_m))
+        if not offsets.size:
+            return (0.0, 0.0)
+        ranges_m = np.hypot(offsets[:, 0], offsets[:, 1])
+        inside_m = self.clearance_m - _INSIDE_SLACK_M - float(np.min(ranges_m))
+        if inside_m <= 0.0:
+            return (0.0, 0.0)
+        toward = self._side_within(offsets, ranges_m, self.clearance_m)
+        if toward is None:
+            return (0.0, 0.0)
+        speed = min(_BACK_AWAY_MAX_M_S, _BACK_AWAY_GAIN * inside_m)
+        return (-speed * math.cos(toward), -speed * math.sin(toward))
 
     def free_m(
         self, pose: Pose, headings_rad: np.ndarray, buffer_m: float | np.ndarray = 0.0
@@ -490,7 +529,12 @@ class Planner:
         off_rad = abs(turned_rad - self._view_offset_rad(turned_rad))
         speed *= 0.5 + 0.5 * max(0.0, math.cos(off_rad))
         yaw_rate = self._yaw_rate(float(wrap_rad(look - pose.yaw_rad)))
-        velocity = (speed * math.cos(chosen), speed * math.sin(chosen), vertical)
+        north, east = _with_back_away(
+            (speed * math.cos(chosen), speed * math.sin(chosen)),
+            self.back_away_m_s(pose),
+            config.max_speed_m_s,
+        )
+        velocity = (north, east, vertical)
         return Decision(
             velocity,
             yaw_rate,
@@ -653,3 +697,28 @@ class Planner:
         rate = math.radians(self.config.max_yaw_rate_deg_s)
         yaw_rate = max(-rate, min(rate, _YAW_GAIN * (target - self._turned_rad)))
         return Decision((0.0, 0.0, 0.0), yaw_rate, "dead end", goal_distance_m=goal_m)
+
+
+def _with_back_away(
+    way: tuple[float, float], away: tuple[float, float], max_speed_m_s: float
+) -> tuple[float, float]:
+    """The velocity along the way chosen plus the one away from what is too near.
+
+    The speed away is kept whole (up to the maximum speed); the speed along the way gives
+    way so that the sum stays within the maximum.
+    """
+    away_m_s = math.hypot(*away)
+    if away_m_s == 0.0:
+        return way
+    if away_m_s > max_speed_m_s:
+        away = (away[0] * max_speed_m_s / away_m_s, away[1] * max_speed_m_s / away_m_s)
+        away_m_s = max_speed_m_s
+    way_sq = way[0] ** 2 + way[1] ** 2
+    north, east = way[0] + away[0], way[1] + away[1]
+    if way_sq == 0.0 or math.hypot(north, east) <= max_speed_m_s:
+        return (north, east)
+    # The largest share s of the way with |s * way + away| = max speed.
+    dot = way[0] * away[0] + way[1] * away[1]
+    root = math.sqrt(max(0.0, dot * dot - way_sq * (away_m_s**2 - max_speed_m_s**2)))
+    share = max(0.0, min(1.0, (root - dot) / way_sq))
+    return (share * way[0] + away[0], share * way[1] + away[1])
