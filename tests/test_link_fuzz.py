@@ -56,6 +56,8 @@ def _mutate(frame: bytes, mutations: list[Mutation]) -> bytes:
     data = bytearray(frame)
     for op, where, payload in mutations:
         at = where % max(len(data), 1)
+        if not data and op != "insert":
+            continue  # deletions took the whole frame: nothing left to flip or delete
         if op == "flip":
             data[at] ^= payload[0] or 1
         elif op == "insert":

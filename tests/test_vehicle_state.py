@@ -143,9 +143,11 @@ def test_clock_sync_takes_the_fastest_message_and_follows_a_reboot() -> None:
     # A message delayed by half a second is late, not a reboot.
     late_ms = (10_100_000_000 + true_offset_ns) // 1_000_000
     assert not clock.observe_boot_ms(late_ms, 10_600_000_000)
-    # A reboot: the autopilot's clock restarts near zero; the estimate follows at once.
-    assert clock.observe_boot_ms(50, 20_000_000_000)
-    assert clock.offset_ns == 50_000_000 - 20_000_000_000
+    # A reboot: the autopilot's clock restarts near zero. One such message could be a late
+    # read; still so 0.2 s later, it is a reboot, and the estimate follows at once.
+    assert not clock.observe_boot_ms(50, 20_000_000_000)
+    assert clock.observe_boot_ms(250, 20_200_000_000)
+    assert clock.offset_ns == 250_000_000 - 20_200_000_000
 
 
 def test_clock_sync_sees_a_reboot_after_a_short_uptime() -> None:
@@ -154,7 +156,30 @@ def test_clock_sync_sees_a_reboot_after_a_short_uptime() -> None:
     clock = ClockSync()
     for i in range(10):
         clock.observe_boot_ms(2_000 + 100 * i, 10_000_000_000 + i * 100_000_000)
-    assert clock.observe_boot_ms(800, 11_500_000_000)  # 2.8 s up -> 0.8 s up, 0.5 s later
+    assert not clock.observe_boot_ms(800, 11_500_000_000)  # 2.8 s up -> 0.8 s up, 0.5 s later
+    assert clock.observe_boot_ms(1_000, 11_700_000_000)  # and still so 0.2 s on
+
+
+def test_a_burst_of_stamps_read_late_by_a_busy_machine_is_no_reboot() -> None:
+    # The autopilot stamps a message every 20 ms; avoidd's loop stalls for 1.5 s and then reads
+    # the 75 queued messages at once: they look 1.5 s late, but the boot clock never went back.
+    clock = ClockSync()
+    offset_ns = 60_000_000_000
+    for i in range(100):
+        sent_ns = 10_000_000_000 + i * 20_000_000
+        assert not clock.observe_boot_ms((sent_ns + offset_ns) // 1_000_000, sent_ns + 1_000_000)
+    stalled_until_ns = 12_000_000_000 + 1_500_000_000
+    for i in range(100, 175):
+        sent_ns = 10_000_000_000 + i * 20_000_000
+        assert not clock.observe_boot_ms((sent_ns + offset_ns) // 1_000_000, stalled_until_ns)
+    # The messages after the burst are on time again.
+    for i in range(175, 200):
+        sent_ns = 10_000_000_000 + i * 20_000_000
+        assert not clock.observe_boot_ms((sent_ns + offset_ns) // 1_000_000, sent_ns + 1_000_000)
+    assert clock.offset_ns == offset_ns - 1_000_000  # the fast messages still set the estimate
+    # A real reboot right after is still seen.
+    assert not clock.observe_boot_ms(400, 14_100_000_000)
+    assert clock.observe_boot_ms(600, 14_300_000_000)
 
 
 def test_attitude_interpolates_and_wraps_yaw() -> None:
@@ -250,6 +275,25 @@ async def test_vehicle_adopts_the_autopilot_and_ignores_others() -> None:
     assert vehicle.ignored[4] == 1
     vehicle.tick(1_000 + 4_000_000_000)  # no heartbeat for 4 s > 3 s timeout
     assert not vehicle.link_up and events[-1] == "avoidd: link down"
+
+
+async def test_a_late_tick_judges_no_silence_until_the_socket_was_read() -> None:
+    # avoidd did not run for 4 s (a busy machine): the autopilot's heartbeats of that time may
+    # still wait in the socket. The late tick leaves the link up; a tick on time after it, with
+    # still nothing heard, says it is down.
+    config = MavlinkConfig(connection="udpout:127.0.0.1:9")
+    link = MavLink(config.link, mav.Codec(1, 196))
+    vehicle = Vehicle(link, config, lambda severity, text, key=None: None)
+    sender = mav.Codec(3, 1)
+    beat = sender.build("HEARTBEAT", COPTER, mav.MAV_AUTOPILOT_ARDUPILOTMEGA, 1, 4, 4)
+    for decoded in link.codec.decode(sender.pack(beat)):
+        vehicle.handle(decoded, 1_000)
+    assert vehicle.link_up
+    vehicle.tick(100_000_000)
+    vehicle.tick(4_100_000_000)  # 4 s late
+    assert vehicle.link_up and vehicle.late_ticks == 1
+    vehicle.tick(4_200_000_000)
+    assert not vehicle.link_up
 
 
 async def test_vehicle_with_a_fixed_system_id_never_adopts_another() -> None:

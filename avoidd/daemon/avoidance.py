@@ -311,7 +311,9 @@ class AvoidanceLoop:
         if state == self.state:
             return
         previous, self.state = self.state, state
-        logger.info("avoidance: %s (was %s)", state, previous)
+        # "no path" ends the flight toward the goal: an operator reading the log must see it.
+        level = logging.WARNING if state == "no path" else logging.INFO
+        logger.log(level, "avoidance: %s (was %s)", state, previous)
         severity = mav.MAV_SEVERITY_INFO
         text = f"avoidd: {state}" if state.startswith("avoidance") else f"avoidd: avoidance {state}"
         if state == "no path":

@@ -18,6 +18,10 @@ from collections import deque
 _WINDOW_NS = 3_000_000_000
 _REBOOT_NS = 1_000_000_000
 """A boot clock that runs this far behind the estimate started over: the autopilot rebooted."""
+_CONFIRM_NS = 200_000_000
+"""...and still does in a message received this much later: a busy machine that reads its
+socket a second late gets a burst of stamps that look a second old, but the messages read
+after the burst are on time again."""
 
 
 class ClockSync:
@@ -26,6 +30,8 @@ class ClockSync:
     def __init__(self) -> None:
         self._bounds: deque[tuple[int, int]] = deque()  # (local receive ns, offset bound ns)
         self._offset_ns: int | None = None
+        self._behind_since_ns: int | None = None
+        self._reference_ns: int | None = None
 
     @property
     def synced(self) -> bool:
@@ -41,12 +47,23 @@ class ClockSync:
         """Take one autopilot ``time_boot_ms`` stamp received at local monotonic ``received_ns``.
 
         Returns:
-            True when the stamp shows the autopilot rebooted (its boot clock went back by more
-            than a second, which no delay in transit explains); the estimate starts over.
+            True when the stamps show the autopilot rebooted: its boot clock runs more than a
+            second behind the estimate, which no delay in transit explains, in every message
+            for at least 0.2 s (a burst of queued messages read late looks so only once). The
+            estimate starts over.
         """
         bound = time_boot_ms * 1_000_000 - received_ns
-        rebooted = self._offset_ns is not None and bound < self._offset_ns - _REBOOT_NS
-        if rebooted:
+        rebooted = False
+        # Behind the estimate held when the first such message came (the window may forget
+        # the bounds before it meanwhile).
+        reference_ns = self._offset_ns if self._behind_since_ns is None else self._reference_ns
+        if reference_ns is None or bound >= reference_ns - _REBOOT_NS:
+            self._behind_since_ns = None
+        elif self._behind_since_ns is None:
+            self._behind_since_ns, self._reference_ns = received_ns, reference_ns
+        elif received_ns - self._behind_since_ns >= _CONFIRM_NS:
+            rebooted = True
+            self._behind_since_ns = None
             self._bounds.clear()
         while self._bounds and self._bounds[-1][1] <= bound:
             self._bounds.pop()

@@ -31,6 +31,8 @@ _REQUEST_RETRY_S = 1.0
 _SILENT_MIN_NS = 1_000_000_000
 """An accepted stream silent for this long (or three intervals) is asked for again: an
 autopilot that rebooted within the link timeout has forgotten every request."""
+_LATE_TICK_NS = 500_000_000
+"""A tick this long after the previous one (they come every 0.1 s) judges no silence."""
 _QUIET_BACKOFF_MAX = 6
 """An accepted stream that never delivered is asked again after its silent time, then twice
 as long each time, up to 2**6 times it (64 s for most streams)."""
@@ -155,6 +157,9 @@ class Vehicle:
         """Streams asked for again after going silent."""
         self.quiet_streams = 0
         """Requests sent again for accepted streams that never delivered."""
+        self.late_ticks = 0
+        """Ticks that came too late to judge silence (avoidd was not running)."""
+        self._last_tick_ns: int | None = None
         self.invalid: Counter[str] = Counter()
         """Messages dropped because a value was not a finite number, by type."""
         self.requests = [
@@ -414,7 +419,16 @@ class Vehicle:
     # --- periodic ----------------------------------------------------------------------------
 
     def tick(self, now_ns: int) -> None:
-        """Update link state and (re)send stream requests; call a few times per second."""
+        """Update link state and (re)send stream requests; call a few times per second.
+
+        A tick that comes late (the machine was too busy to run avoidd for a while) judges
+        nothing: what the autopilot sent meanwhile may still wait in the socket, unread, and
+        would look like silence (a link down, streams stopped, a reboot). The next tick does.
+        """
+        last_ns, self._last_tick_ns = self._last_tick_ns, now_ns
+        if last_ns is not None and now_ns - last_ns > _LATE_TICK_NS:
+            self.late_ticks += 1
+            return
         timeout_ns = int(self._config.link_timeout_s * 1e9)
         if self.link_up and (
             self.last_heartbeat_ns is None or now_ns - self.last_heartbeat_ns > timeout_ns

@@ -353,8 +353,8 @@ class ExternalRun:
             if answer is not None and answer.result == mav.MAV_RESULT_ACCEPTED:
                 logger.info("avoidd took the goal N%.1f E%.1f", north_m, east_m)
                 return
-            logger.info(
-                "goal: %s",
+            logger.warning(
+                "goal not taken: %s",
                 "no answer" if answer is None else f"refused (MAV_RESULT {answer.result})",
             )
             await asyncio.sleep(1.0)
