@@ -269,13 +269,6 @@ async def test_px4_offboard_planner_flies_round_the_wall_and_yields_to_the_pilot
         f"setpoints after Position mode {run.setpoints_after_release}; "
         f"test {time.monotonic() - t0:.0f} s"
     )
-    if run.gcs is not None:
-        said = [
-            m.text
-            for m in run.gcs.of_type("STATUSTEXT")
-            if m.get_srcComponent() == mav.MAV_COMP_ID_OBSTACLE_AVOIDANCE
-        ]
-        print(f"avoidd said: {said}")
     # The scenario's criteria: no collision, edge clearance >= 0.5 m, goal within 60 s.
     assert summary.passed, summary.failures
     assert not summary.collided and summary.min_clearance_m >= 0.5
