@@ -294,6 +294,13 @@ async def test_a_late_tick_judges_no_silence_until_the_socket_was_read() -> None
     assert vehicle.link_up and vehicle.late_ticks == 1
     vehicle.tick(4_200_000_000)
     assert not vehicle.link_up
+    # A loop so slow that every tick is late still judges, every other tick.
+    for decoded in link.codec.decode(sender.pack(beat)):
+        vehicle.handle(decoded, 4_300_000_000)
+    assert vehicle.link_up
+    vehicle.tick(5_000_000_000)
+    vehicle.tick(8_000_000_000)  # late after late: judged
+    assert not vehicle.link_up and vehicle.late_ticks == 3
 
 
 async def test_vehicle_with_a_fixed_system_id_never_adopts_another() -> None:

@@ -160,6 +160,7 @@ class Vehicle:
         self.late_ticks = 0
         """Ticks that came too late to judge silence (avoidd was not running)."""
         self._last_tick_ns: int | None = None
+        self._late_before = False
         self.invalid: Counter[str] = Counter()
         """Messages dropped because a value was not a finite number, by type."""
         self.requests = [
@@ -421,17 +422,22 @@ class Vehicle:
     def tick(self, now_ns: int) -> None:
         """Update link state and (re)send stream requests; call a few times per second.
 
-        A tick that comes late (the machine was too busy to run avoidd for a while) judges
-        nothing: what the autopilot sent meanwhile may still wait in the socket, unread, and
-        would look like silence (a link down, streams stopped, a reboot). The next tick does.
+        A tick that comes late after one on time (the machine was too busy to run avoidd for
+        a while) judges no silence: what the autopilot sent meanwhile may still wait in the
+        socket, unread, and would look like a link down or streams stopped. The next tick
+        judges, late or not (the socket was read in between).
         """
         last_ns, self._last_tick_ns = self._last_tick_ns, now_ns
-        if last_ns is not None and now_ns - last_ns > _LATE_TICK_NS:
+        late = last_ns is not None and now_ns - last_ns > _LATE_TICK_NS
+        judge = not late or self._late_before
+        self._late_before = late
+        if late:
             self.late_ticks += 1
-            return
         timeout_ns = int(self._config.link_timeout_s * 1e9)
-        if self.link_up and (
-            self.last_heartbeat_ns is None or now_ns - self.last_heartbeat_ns > timeout_ns
+        if (
+            judge
+            and self.link_up
+            and (self.last_heartbeat_ns is None or now_ns - self.last_heartbeat_ns > timeout_ns)
         ):
             self.link_up = False
             logger.error(
@@ -441,7 +447,7 @@ class Vehicle:
             )
             self._announce(mav.MAV_SEVERITY_WARNING, "avoidd: link down", "link")
         if self.link_up:
-            if self._link.connected:  # a lost port or connection is said once, by the link
+            if judge and self._link.connected:  # a lost port or connection: said by the link
                 self._check_silent_streams(now_ns)
             self._request_streams(now_ns / 1e9)
             self._request_origin(now_ns)
