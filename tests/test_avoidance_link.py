@@ -77,6 +77,11 @@ async def test_ardupilot_guided_gets_velocity_setpoints_and_loiter_gets_none(
         assert len(_setpoints(autopilot)) <= count + 1
         texts = [m.text for m in autopilot.of_type("STATUSTEXT")]
         assert "avoidd: avoidance disarmed" in texts
+        # The state changes are kept in order with their times (a run's summary shows them).
+        states = [state for _, state in daemon.avoidance.history]
+        assert states[-1] == "disarmed" and "mode does not take setpoints" in states[:-1]
+        times_ns = [t_ns for t_ns, _ in daemon.avoidance.history]
+        assert times_ns == sorted(times_ns)
     finally:
         await stop(daemon, task)
         await autopilot.stop()

@@ -51,6 +51,6 @@ async def test_avoidd_flies_guided_round_a_wall_to_its_goal(sitl_dir: Path) -> N
     print(summary.as_json())
     assert not summary.collided, summary.as_json()
     assert summary.reached_s is not None, summary.as_json()
-    assert summary.passed, summary.failures
+    assert summary.passed, summary.as_json()
     # It went round an end of the wall (12 m wide, from east -6 to 6), not through it.
     assert max(abs(sample.east_m) for sample in summary.samples) > 6.0

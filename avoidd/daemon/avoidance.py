@@ -24,6 +24,7 @@ from __future__ import annotations
 
 import logging
 import time
+from collections import deque
 from collections.abc import Callable
 
 from avoidd.config import AvoidanceConfig
@@ -47,6 +48,8 @@ VELOCITY_YAW_RATE_MASK = 0x05C7
 and yaw (bits 0-2, 6-8 and 10 set)."""
 
 _SWITCH_OFF_HOLD_NS = 1_000_000_000
+_HISTORY = 64
+"""State changes kept in :attr:`AvoidanceLoop.history`."""
 _MISSION_MESSAGES = frozenset(
     {"MISSION_COUNT", "MISSION_ITEM_INT", "MISSION_ACK", "MISSION_CURRENT"}
 )
@@ -103,6 +106,8 @@ class AvoidanceLoop:
         self._mission_done = False
         self.state = "starting" if config.enabled else _REASONS["enabled"]
         """What the loop did last cycle: a gate reason or the planner's state."""
+        self.history: deque[tuple[int, str]] = deque(maxlen=_HISTORY)
+        """The latest state changes, oldest first: (``time.monotonic_ns()``, new state)."""
         self.last_decision: Decision | None = None
         self._switched_off_ns = -(10**18)
         self._was_setpoint_mode = False
@@ -311,6 +316,7 @@ class AvoidanceLoop:
         if state == self.state:
             return
         previous, self.state = self.state, state
+        self.history.append((time.monotonic_ns(), state))
         # "no path" ends the flight toward the goal: an operator reading the log must see it.
         level = logging.WARNING if state == "no path" else logging.INFO
         logger.log(level, "avoidance: %s (was %s)", state, previous)

@@ -56,6 +56,8 @@ HOME = (-35.363261, 149.165230, 584.0)
 Mode = Literal["planner", "push"]
 
 _NAV_TAKEOFF = 22
+_SAID_KEPT = 12
+"""The autopilot's last STATUSTEXTs kept in a run's summary."""
 """MAV_CMD_NAV_TAKEOFF (param 7: the altitude)."""
 _VELOCITY_AND_YAW = 0x09C7
 """SET_POSITION_TARGET type mask: velocity and yaw angle (no position, acceleration, yaw rate).
@@ -102,6 +104,9 @@ class ExternalSummary:
         samples: Position reports measured.
         passed: The scenario's criteria held.
         failures: Why not.
+        states: avoidd's avoidance state changes, ``"<s> <state>"`` with seconds from the
+            start of the flight (negative: before it).
+        autopilot_said: The autopilot's last STATUSTEXTs to the ground station.
     """
 
     scenario: str
@@ -114,6 +119,8 @@ class ExternalSummary:
     samples: list[Sample] = field(default_factory=list)
     passed: bool = False
     failures: list[str] = field(default_factory=list)
+    states: list[str] = field(default_factory=list)
+    autopilot_said: list[str] = field(default_factory=list)
 
     def as_json(self) -> dict[str, Any]:
         """The summary without the samples, for printing."""
@@ -128,6 +135,8 @@ class ExternalSummary:
             "samples": len(self.samples),
             "passed": self.passed,
             "failures": self.failures,
+            "states": self.states,
+            "autopilot_said": self.autopilot_said,
         }
 
 
@@ -214,6 +223,8 @@ class ExternalRun:
         """Height of the ground under the start above the autopilot's local origin (PX4's
         origin can sit up to 2 m off the ground: its height drifts while it settles)."""
         self.daemon: Daemon | None = None
+        self.gcs: GroundStation | None = None
+        """The ground station of the run (what it heard stays readable after the run)."""
         self.summary = ExternalSummary(scenario.name, mode)
         self._t0_ns = 0
 
@@ -238,6 +249,7 @@ class ExternalRun:
         task: asyncio.Task[int] | None = None
         try:
             gcs = await sitl.start(timeout_s=60.0)
+            self.gcs = gcs
             task = asyncio.create_task(daemon.run(), name="avoidd")
             await self._fly(gcs)
         finally:
@@ -411,8 +423,22 @@ class ExternalRun:
         target = (0, self.daemon.vehicle.system_id, 1, mav.MAV_FRAME_LOCAL_NED, _VELOCITY_AND_YAW)
         gcs.send(gcs.codec.build("SET_POSITION_TARGET_LOCAL_NED", *target, 0, 0, 0, *velocity))
 
+    def _record_what_was_said(self) -> None:
+        """Keep avoidd's state changes and the autopilot's last words, for a failure's message."""
+        summary = self.summary
+        loop = self.daemon.avoidance if self.daemon is not None else None
+        if loop is not None:
+            summary.states = [
+                f"{(t_ns - self._t0_ns) / 1e9:.1f} {state}" if self._t0_ns else state
+                for t_ns, state in loop.history
+            ]
+        if self.gcs is not None:
+            said = self.gcs.of_type("STATUSTEXT")[-_SAID_KEPT:]
+            summary.autopilot_said = [str(m.text) for m in said]
+
     def _judge(self) -> None:
         summary = self.summary
+        self._record_what_was_said()
         criteria = self.scenario.passing
         if not summary.samples:
             summary.failures.append("no position reports after take-off")

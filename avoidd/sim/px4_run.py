@@ -93,8 +93,6 @@ class Px4Run(ExternalRun):
         self.setpoints_after_release: int | None = None
         """Setpoints avoidd sent from one cycle after it saw Position mode until 2 s later."""
         self.estimator_s = 0.0
-        self.gcs: GroundStation | None = None
-        """The ground station of the run (what it heard stays readable after the run)."""
         self._plugged = [True]
         unsupported = [a.action for a in scenario.timeline if not a.action.startswith("camera_")]
         if unsupported:
