@@ -409,6 +409,31 @@ async def test_global_goals_wait_for_the_origin_and_are_acknowledged(tmp_path: P
         await autopilot.stop()
 
 
+async def test_home_is_asked_again_after_each_arming(tmp_path: Path) -> None:
+    """Both autopilots move home to where the vehicle stands when it arms."""
+    autopilot = MockAutopilot(system_id=7, mode="GUIDED", armed=False, home_up_m=0.5)
+    autopilot.origin = ORIGIN
+    daemon, task = await _pair(tmp_path, autopilot, {"avoidance": {"enabled": True}})
+    try:
+        assert await wait_for(lambda: daemon.vehicle.home_up_m == pytest.approx(0.5), 10)
+        # Home moves without an arming (nothing tells avoidd): the known home stays.
+        autopilot.home_up_m = 1.25
+        await asyncio.sleep(2.5)
+        assert daemon.vehicle.home_up_m == pytest.approx(0.5)
+        # Armed: avoidd asks again and takes the new home.
+        autopilot.armed = True
+        assert await wait_for(lambda: daemon.vehicle.home_up_m == pytest.approx(1.25), 6)
+        # Disarmed, moved, armed again: once more.
+        autopilot.armed = False
+        assert await wait_for(lambda: not daemon.vehicle.mode.armed, 5)
+        autopilot.home_up_m = -0.75
+        autopilot.armed = True
+        assert await wait_for(lambda: daemon.vehicle.home_up_m == pytest.approx(-0.75), 6)
+    finally:
+        await stop(daemon, task)
+        await autopilot.stop()
+
+
 async def test_the_mission_is_downloaded_despite_losses_flown_in_order_and_read_again(
     tmp_path: Path,
 ) -> None:

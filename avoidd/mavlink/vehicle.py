@@ -38,6 +38,8 @@ _QUIET_BACKOFF_MAX = 6
 as long each time, up to 2**6 times it (64 s for most streams)."""
 _NOT_AUTOPILOTS = {mav.MAV_TYPE_GCS, mav.MAV_TYPE_ONBOARD_CONTROLLER}
 _ORIGIN_RETRY_NS = 2_000_000_000
+_HOME_AFTER_ARMING_NS = 1_000_000_000
+"""Home is asked again this long after arming (both autopilots set it when they arm)."""
 _GPS_GLOBAL_ORIGIN = 49
 _HOME_POSITION = 242
 
@@ -149,6 +151,8 @@ class Vehicle:
         """Ask for GPS_GLOBAL_ORIGIN and HOME_POSITION until both are known (global goals
         and missions need them)."""
         self._origin_asked_ns = -(10**18)
+        self._home_due_ns: int | None = None
+        """Home is to be asked again from then on (set on arming, cleared by a new home)."""
         self.ignored: Counter[int] = Counter()
         self._said_ignored: set[int] = set()
         self.reboots = 0
@@ -301,6 +305,10 @@ class Vehicle:
                 logger.info("vehicle %d: %s mode %s", self.system_id, mode.autopilot, mode.name)
             if previous is not None and previous.armed != mode.armed:
                 logger.info("vehicle %d: %s", self.system_id, "armed" if mode.armed else "disarmed")
+                if mode.armed and self.home_up_m is not None:
+                    # Arming moves home to where the vehicle stands (PX4 and ArduPilot): the
+                    # home known from before may be another place or height.
+                    self._home_due_ns = received_ns + _HOME_AFTER_ARMING_NS
             self.mode = mode
         self.last_heartbeat_ns = received_ns
         if not self.link_up:
@@ -371,6 +379,8 @@ class Vehicle:
     def _on_home_position(self, message: mav.Message, received_ns: int) -> None:
         if math.isfinite(message.z):
             self.home_up_m = -float(message.z)
+            if self._home_due_ns is not None and received_ns >= self._home_due_ns:
+                self._home_due_ns = None
 
     def _on_command_ack(self, message: mav.Message, received_ns: int) -> None:
         request = self._pending
@@ -472,6 +482,7 @@ class Vehicle:
         self.rangefinder = None
         self.origin = None
         self.home_up_m = None
+        self._home_due_ns = None
         for request in self.requests:
             request.acked = request.refused = False
             request.attempts = request.quiet_asks = 0
@@ -552,12 +563,16 @@ class Vehicle:
         )
 
     def _request_origin(self, now_ns: int) -> None:
-        """Ask for the origin and home (MAV_CMD_REQUEST_MESSAGE) every 2 s until both are known."""
+        """Ask for the origin and home (MAV_CMD_REQUEST_MESSAGE) every 2 s until both are known.
+
+        Home is asked again from a second after each arming until a new one arrives.
+        """
+        home_due = self._home_due_ns is not None and now_ns >= self._home_due_ns
         wanted = [
             msg_id
             for msg_id, known in (
                 (_GPS_GLOBAL_ORIGIN, self.origin is not None),
-                (_HOME_POSITION, self.home_up_m is not None),
+                (_HOME_POSITION, self.home_up_m is not None and not home_due),
             )
             if not known
         ]
