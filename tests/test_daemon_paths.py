@@ -3,6 +3,7 @@ temporal filter restarting with a looping recording, the autopilot's attitude in
 
 from __future__ import annotations
 
+import asyncio
 import math
 from pathlib import Path
 from typing import Any
@@ -281,3 +282,27 @@ async def test_the_autopilot_attitude_is_what_perception_uses(tmp_path: Path) ->
     for scan in later_scans(settled_ns):
         assert _state(scan[0], 190) == "near", scan[:8]
         assert all(v in (CLEAR_CM, UNKNOWN_CM) for v in scan[2:8]), scan[:8]
+
+
+async def test_stop_and_wait_gives_the_exit_code_and_logs_a_run_that_raised_or_hangs(
+    tmp_path: Path, caplog: pytest.LogCaptureFixture
+) -> None:
+    """What the simulations call when tidying up after a flight, failed or not."""
+    config = synthetic_config(tmp_path, f"udpout:127.0.0.1:{free_udp_port()}")
+    daemon, task = await start_daemon(config)
+    assert await wait_for(lambda: daemon.sent["OBSTACLE_DISTANCE"] > 0, 15.0)
+    assert await daemon.stop_and_wait(task) == 0
+
+    async def raises() -> int:
+        raise RuntimeError("a head thread died")
+
+    async def hangs() -> int:
+        await asyncio.sleep(60.0)
+        return 0
+
+    assert await daemon.stop_and_wait(asyncio.create_task(raises())) is None
+    assert "avoidd ended with an error" in caplog.text and "a head thread died" in caplog.text
+    hanging = asyncio.create_task(hangs())
+    assert await daemon.stop_and_wait(hanging, timeout_s=0.2) is None
+    assert "avoidd did not stop within 0.2 s" in caplog.text
+    assert hanging.cancelled()

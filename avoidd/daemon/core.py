@@ -155,6 +155,29 @@ class Daemon:
         """Ask the daemon to shut down (safe from signal handlers in the loop)."""
         self._stopping.set()
 
+    async def stop_and_wait(self, task: asyncio.Task[int], timeout_s: float = 30.0) -> int | None:
+        """Stop the daemon whose :meth:`run` is ``task`` and wait for it to end.
+
+        For embedders that must go on whatever happened (a simulation tidying up after a
+        failed flight): a run that raised or did not end in time is logged, not raised.
+
+        Args:
+            task: The task running :meth:`run`.
+            timeout_s: How long to wait (a head thread mid-frame on a machine whose cores are
+                all busy has taken more than 10 s to be joined).
+
+        Returns:
+            The run's exit code; None when it raised or did not end within ``timeout_s``.
+        """
+        self.stop()
+        try:
+            return await asyncio.wait_for(task, timeout_s)
+        except TimeoutError:
+            logger.error("avoidd did not stop within %.1f s", timeout_s)
+        except Exception:
+            logger.exception("avoidd ended with an error")
+        return None
+
     def announce(self, severity: int, text: str, key: str | None = None) -> None:
         """Report an event as STATUSTEXT (dropped before :meth:`run` has started)."""
         if self._announcer is not None:

@@ -21,7 +21,6 @@ heading as the scenario says; positions are shifted by the start to compare with
 from __future__ import annotations
 
 import asyncio
-import contextlib
 import logging
 import math
 import time
@@ -254,9 +253,7 @@ class ExternalRun:
             await self._fly(gcs)
         finally:
             if task is not None:
-                daemon.stop()
-                with contextlib.suppress(Exception):
-                    await asyncio.wait_for(task, 30.0)
+                await daemon.stop_and_wait(task)
             await sitl.stop()
         self._judge()
         return self.summary

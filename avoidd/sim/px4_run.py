@@ -132,9 +132,7 @@ class Px4Run(ExternalRun):
                     self.sticks.longest_gap_s,
                 )
             if task is not None:
-                daemon.stop()
-                with contextlib.suppress(Exception):
-                    await asyncio.wait_for(task, 30.0)
+                await daemon.stop_and_wait(task)
             await sitl.stop()
         self._judge()
         return self.summary

@@ -11,7 +11,6 @@ both sides); it shows that what the lockstep loop measured holds for the real pr
 from __future__ import annotations
 
 import asyncio
-import contextlib
 import math
 import time
 from pathlib import Path
@@ -95,9 +94,7 @@ class RealtimeRun(ExternalRun):
             await self._play()
         finally:
             autopilot.on_step = None
-            daemon.stop()
-            with contextlib.suppress(Exception):
-                await asyncio.wait_for(task, 30.0)
+            await daemon.stop_and_wait(task)
             await autopilot.stop()
         self._judge()
         return self.summary
