@@ -88,11 +88,20 @@ class ArduPilotSitl:
     async def start(self, timeout_s: float = 30.0) -> GroundStation:
         """Start the binary, connect the ground station and wait for the first heartbeat.
 
+        A start that fails leaves nothing behind (process, socket, work folder).
+
         Raises:
             LinkError: The binary is missing, or it never served its ground-station port.
         """
         if not os.access(self.binary, os.X_OK):
             raise LinkError(f"{self.binary}: not an executable ArduCopter SITL binary")
+        try:
+            return await self._start(timeout_s)
+        except BaseException:
+            await self.stop()
+            raise
+
+    async def _start(self, timeout_s: float) -> GroundStation:
         self.instance = free_instance()
         self._workdir = Path(tempfile.mkdtemp(prefix="avoidd-sitl-"))
         self.process = await asyncio.create_subprocess_exec(
@@ -140,11 +149,7 @@ class ArduPilotSitl:
             self._workdir = None
 
     async def __aenter__(self) -> ArduPilotSitl:
-        try:
-            await self.start()
-        except BaseException:
-            await self.stop()
-            raise
+        await self.start()
         return self
 
     async def __aexit__(

@@ -124,6 +124,8 @@ class Px4Sitl:
     async def start(self, timeout_s: float = 30.0) -> GroundStation:
         """Start the binary, listen on the GCS link and wait for the first heartbeat.
 
+        A start that fails leaves nothing behind (process, socket, work folder).
+
         Raises:
             LinkError: The binary is missing, a port PX4 needs is taken, or no heartbeat came.
         """
@@ -135,13 +137,16 @@ class Px4Sitl:
                 f"PX4 SITL: UDP ports {taken} on 127.0.0.1 are taken (another PX4 or a ground "
                 "station?); PX4's ports are fixed, run one instance at a time"
             )
-        if self.gcs is None:
-            gcs = GroundStation(f"udpin:127.0.0.1:{GCS_PORT}")
-            await gcs.open()
-            self.gcs = gcs
-        await self._spawn()
-        assert self.gcs is not None
-        await self.gcs.wait_heartbeat(timeout_s)
+        try:
+            if self.gcs is None:
+                gcs = GroundStation(f"udpin:127.0.0.1:{GCS_PORT}")
+                self.gcs = gcs
+                await gcs.open()
+            await self._spawn()
+            await self.gcs.wait_heartbeat(timeout_s)
+        except BaseException:
+            await self.stop()
+            raise
         logger.info("PX4 SITL up (GCS udp:%d, onboard udp:%d)", GCS_PORT, ONBOARD_PORT)
         return self.gcs
 
@@ -215,11 +220,7 @@ class Px4Sitl:
         await self._kill()
 
     async def __aenter__(self) -> Px4Sitl:
-        try:
-            await self.start()
-        except BaseException:
-            await self.stop()
-            raise
+        await self.start()
         return self
 
     async def __aexit__(

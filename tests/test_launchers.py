@@ -1,0 +1,87 @@
+"""The SITL launchers leave nothing behind when an autopilot never answers (no SITL needed:
+a stand-in binary that starts and stays silent)."""
+
+from __future__ import annotations
+
+import asyncio
+import os
+import socket
+import stat
+import tempfile
+from pathlib import Path
+
+import pytest
+
+from avoidd.errors import LinkError
+from avoidd.sim import ardupilot, px4
+from tests.helpers import free_udp_port
+
+
+def _silent_binary(path: Path) -> None:
+    path.parent.mkdir(parents=True, exist_ok=True)
+    path.write_text("#!/bin/sh\nexec sleep 300\n")
+    path.chmod(path.stat().st_mode | stat.S_IXUSR)
+
+
+def _group_gone(pid: int) -> bool:
+    try:
+        os.killpg(pid, 0)
+    except ProcessLookupError:
+        return True
+    return False
+
+
+def _udp_bindable(port: int) -> bool:
+    with socket.socket(socket.AF_INET, socket.SOCK_DGRAM) as probe:
+        try:
+            probe.bind(("127.0.0.1", port))
+        except OSError:
+            return False
+    return True
+
+
+@pytest.fixture
+def ended(monkeypatch: pytest.MonkeyPatch, tmp_path: Path) -> list[int]:
+    """Pids of the processes the launchers ended; their work folders go under tmp_path/tmp."""
+    pids: list[int] = []
+    real = px4.end_process_group
+
+    async def end(process: asyncio.subprocess.Process | None, grace_s: float = 3.0) -> None:
+        if process is not None:
+            pids.append(process.pid)
+        await real(process, grace_s)
+
+    monkeypatch.setattr(px4, "end_process_group", end)
+    monkeypatch.setattr(ardupilot, "end_process_group", end)
+    (tmp_path / "tmp").mkdir()
+    monkeypatch.setattr(tempfile, "tempdir", str(tmp_path / "tmp"))
+    return pids
+
+
+async def test_a_px4_that_never_answers_leaves_no_process_socket_or_folder(
+    tmp_path: Path, ended: list[int]
+) -> None:
+    if not all(_udp_bindable(p) for p in (*px4.PX4_PORTS, px4.GCS_PORT)):
+        pytest.skip("PX4's fixed UDP ports are in use (another PX4 or ground station runs)")
+    _silent_binary(tmp_path / "px4" / "bin" / "px4")
+    (tmp_path / "px4" / "etc").mkdir()
+    sitl = px4.Px4Sitl(tmp_path / "px4")
+    with pytest.raises(LinkError, match="heartbeat"):
+        await sitl.start(timeout_s=0.5)
+    assert len(ended) == 1 and _group_gone(ended[0])
+    assert sitl.process is None and sitl.gcs is None
+    assert not any((tmp_path / "tmp").iterdir())  # the work folder is gone
+    assert _udp_bindable(px4.GCS_PORT)  # the ground station's socket is closed
+
+
+async def test_an_ardupilot_that_never_answers_leaves_no_process_or_folder(
+    tmp_path: Path, ended: list[int]
+) -> None:
+    _silent_binary(tmp_path / "ap" / "arducopter")
+    (tmp_path / "ap" / "copter.parm").write_text("")
+    sitl = ardupilot.ArduPilotSitl(tmp_path / "ap", free_udp_port())
+    with pytest.raises(LinkError):
+        await sitl.start(timeout_s=0.5)
+    assert len(ended) == 1 and _group_gone(ended[0])
+    assert sitl.process is None and sitl.gcs is None
+    assert not any((tmp_path / "tmp").iterdir())
