@@ -224,7 +224,7 @@ def validate_document(doc: YamlDocument, model: type[M], context: dict[str, Any]
     except ValidationError as exc:
         names = _field_names(model)
         raise ConfigError(
-            [_format_error(doc, err, names) for err in exc.errors(include_url=False)]
+            [_format_error(doc, err, names, model) for err in exc.errors(include_url=False)]
         ) from exc
 
 
@@ -313,16 +313,27 @@ def _format_value(value: Any) -> str:
     return text if len(text) <= 60 else text[:57] + "..."
 
 
-def _format_error(doc: YamlDocument, err: ErrorDetails, names: set[str]) -> str:
+def _format_error(
+    doc: YamlDocument, err: ErrorDetails, names: set[str], model: type[BaseModel]
+) -> str:
     line, path = _locate(doc.root, err)
     message = err["msg"].removeprefix("Value error, ").removeprefix("Assertion failed, ")
     kind = err["type"]
     if kind == "missing":
+        loc = err["loc"]
+        if loc and isinstance(loc[-1], int):
+            # A tuple given too few values: pydantic reports the first one missing.
+            where = _format_path(path[:-1] if path and isinstance(path[-1], int) else path)
+            return (
+                f"{doc.path}:{line}: {where}: too few values (value {loc[-1] + 1} is missing); "
+                f"give every one (got {_format_value(err.get('input'))})"
+            )
         return f"{doc.path}:{line}: {_format_path(path)}: required key is missing; add it"
     if kind == "extra_forbidden":
         key = str(path[-1]) if path else ""
-        close = difflib.get_close_matches(key, sorted(names), n=1, cutoff=0.6)
-        if key in names:
+        here = _names_at(model, err["loc"][:-1]) or names
+        close = difflib.get_close_matches(key, sorted(here), n=1, cutoff=0.6)
+        if key in names and key not in here:
             # Spelt right, but a key of another section or source kind (a files source
             # given a synthetic camera's seed): suggesting itself would not help.
             hint = "a key of another section or kind, not of this one; remove it here"
@@ -339,6 +350,49 @@ def _format_error(doc: YamlDocument, err: ErrorDetails, names: set[str]) -> str:
         return f"{where}: unknown kind '{tag}'; use one of {expected}"
     value = _format_value(err.get("input"))
     return f"{doc.path}:{line}: {_format_path(path)}: {message} (got {value})"
+
+
+def _models_in(annotation: Any) -> list[type[BaseModel]]:
+    """The models an annotation names, through unions, lists, mappings and ``Annotated``."""
+    found: list[type[BaseModel]] = []
+    pending = [annotation]
+    while pending:
+        item = pending.pop()
+        if isinstance(item, type) and issubclass(item, BaseModel):
+            found.append(item)
+        elif typing.get_origin(item) is not None or isinstance(item, types.UnionType):
+            pending.extend(typing.get_args(item))
+    return found
+
+
+def _tags(model: type[BaseModel]) -> tuple[Any, ...]:
+    """The values of a model's ``kind`` (its tag in a discriminated union), if it has one."""
+    kind = model.model_fields.get("kind")
+    return typing.get_args(kind.annotation) if kind is not None else ()
+
+
+def _names_at(model: type[BaseModel], loc: tuple[int | str, ...]) -> set[str]:
+    """The keys valid in the mapping at ``loc`` (every variant's, under a union).
+
+    A part of ``loc`` that is no field (a list index, a union's tag, a mapping's key) keeps
+    the models found so far.
+    """
+    models = [model]
+    for part in loc:
+        inner = [
+            found
+            for m in models
+            if isinstance(part, str) and part in m.model_fields
+            for found in _models_in(m.model_fields[part].annotation)
+        ]
+        if inner:
+            models = inner
+        elif isinstance(part, str) and not any(part in m.model_fields for m in models):
+            tagged = [m for m in models if part in _tags(m)]
+            models = tagged or models
+        elif isinstance(part, str):
+            return set()  # a field that holds no model
+    return {name for m in models for name in m.model_fields}
 
 
 def _field_names(model: type[BaseModel]) -> set[str]:

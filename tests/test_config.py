@@ -121,6 +121,16 @@ def test_shipped_configs_validate(name: str) -> None:
             "or kind, not of this one; remove it here",
         ),
         (
+            "version: 1",
+            "version: 1\nbogus_section: 3",
+            "avoidd.yaml:2: bogus_section: unknown key; remove it or check the spelling",
+        ),  # only the keys valid where the mistake is are suggested (not mavlink's connection)
+        (
+            "connection: udpout",
+            "conection: udpout",
+            "avoidd.yaml:11: mavlink.conection: unknown key; did you mean 'connection'?",
+        ),
+        (
             "num_disparities: 64",
             "num_disparities: 60",
             "avoidd.yaml:9: heads[0].matcher.num_disparities: must be a multiple of 16; "

@@ -18,6 +18,22 @@ from tests.helpers import REPO
 DEMO = (REPO / "config" / "demo.yaml").read_text()
 CALIBRATION = REPO / "config" / "calibration" / "synthetic-640x480.yaml"
 
+REMEDIES = (
+    "use ",
+    "add ",
+    "remove",
+    "check ",
+    "should be",
+    "must be",
+    "give ",
+    "keep only",
+    "is a number",
+    "cannot exceed",
+    "needs a token",
+    "did you mean",
+)
+"""Words by which a line says what to do (one of them must follow the key)."""
+
 # (text in the demo, what it becomes, what the one line must name)
 CASES = [
     ("version: 1", "version: 2", "version"),
@@ -135,3 +151,6 @@ def test_a_broken_configuration_is_one_line_naming_file_line_and_key(
     line_number = int(rest.split(":", 1)[0])
     assert line_number in span, (line_number, span, lines[0])
     assert names in lines[0], lines[0]
+    # ... and what to do: the valid values or the change to make.
+    remedy = lines[0].split(f"{names}:", 1)[-1]
+    assert any(word in remedy for word in REMEDIES), lines[0]
