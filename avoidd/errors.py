@@ -28,7 +28,16 @@ class BrokenFrame(AvoiddError):
 
 
 class SourceExhausted(AvoiddError):
-    """A finite frame source (files, video) has delivered its last frame."""
+    """A finite frame source (files, video) has delivered its last frame.
+
+    Args:
+        message: What ended, and how (``side-by-side video X ended``).
+        early: It ended before the frame count its file announces (truncated or damaged).
+    """
+
+    def __init__(self, message: str, early: bool = False) -> None:
+        super().__init__(message)
+        self.early = early
 
 
 class LinkError(AvoiddError):

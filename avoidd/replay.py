@@ -39,6 +39,8 @@ class ReplaySummary:
         stage_ms: Mean milliseconds per stage.
         distance_errors_pct: Per frame, nearest distance error against the synthetic truth.
         bin_matches: Per frame, whether the nearest bin is the truth's bin.
+        ended_early: How the source fell short of the frames its file announces (None: it
+            did not).
     """
 
     source: str = ""
@@ -47,6 +49,7 @@ class ReplaySummary:
     stage_ms: dict[str, float] = field(default_factory=dict)
     distance_errors_pct: list[float] = field(default_factory=list)
     bin_matches: list[bool] = field(default_factory=list)
+    ended_early: str | None = None
 
 
 def select_head(config: AppConfig, name: str | None) -> HeadConfig:
@@ -172,7 +175,10 @@ def replay(
                 logger.warning("%s", exc)
                 progress.step("dropped")
                 continue
-            except SourceExhausted:
+            except SourceExhausted as exc:
+                if exc.early:
+                    logger.warning("%s", exc)
+                    summary.ended_early = str(exc)
                 break
             started = time.perf_counter()
             scan = temporal.update(result.scan)
@@ -240,6 +246,8 @@ def _histogram_json(depth_m: FloatArray, config: HistogramConfig) -> dict[str, l
 def format_summary(summary: ReplaySummary) -> str:
     """A short human-readable report of a replay run."""
     lines = [f"frames {summary.frames}, dropped {summary.dropped}"]
+    if summary.ended_early is not None:
+        lines.append(f"input ended early: {summary.ended_early}")
     if summary.stage_ms:
         total = sum(summary.stage_ms.values())
         stages = ", ".join(f"{k} {v:.1f}" for k, v in summary.stage_ms.items())

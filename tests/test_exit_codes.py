@@ -11,6 +11,7 @@ import sys
 from pathlib import Path
 
 import cv2
+import numpy as np
 import pytest
 
 from avoidd.cli import main
@@ -38,6 +39,31 @@ def test_replay_of_a_video_without_frames_fails_with_the_reason(
     [error] = _errors(caplog)
     assert "replay: no frame processed from side-by-side video" in error
     assert "it delivered no frame" in error
+
+
+def test_replay_of_a_truncated_video_says_how_many_of_its_frames_it_had(
+    tmp_path: Path, caplog: pytest.LogCaptureFixture, capsys: pytest.CaptureFixture[str]
+) -> None:
+    video = tmp_path / "flight.avi"
+    writer = cv2.VideoWriter(str(video), cv2.VideoWriter_fourcc(*"MJPG"), 10.0, (640, 240))
+    rng = np.random.default_rng(4)
+    for _ in range(30):
+        writer.write(rng.integers(0, 256, (240, 640, 3), dtype=np.uint8))
+    writer.release()
+    config = _config(tmp_path, SOURCE, mavlink=False)
+    # Whole: no word of it.
+    assert _replay(config, tmp_path / "whole.jsonl", "--input", str(video)) == 0
+    assert "ended early" not in capsys.readouterr().out
+    assert len((tmp_path / "whole.jsonl").read_text().splitlines()) == 30
+    # Cut short (a recording whose writer died): what it had is replayed, and it is said.
+    data = video.read_bytes()
+    video.write_bytes(data[: len(data) * 2 // 5])
+    assert _replay(config, tmp_path / "cut.jsonl", "--input", str(video)) == 0
+    lines = len((tmp_path / "cut.jsonl").read_text().splitlines())
+    assert 0 < lines < 30
+    said = f"ended after {lines} of the 30 frames its header announces: the file is truncated"
+    assert f"input ended early: side-by-side video {video} {said}" in capsys.readouterr().out
+    assert any(said in r.getMessage() and r.levelname == "WARNING" for r in caplog.records)
 
 
 def test_replay_whose_every_frame_is_unusable_fails_with_the_reason(

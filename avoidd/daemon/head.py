@@ -200,8 +200,8 @@ class Head:
                 self.stats.broken += 1
                 self._frame_broken(exc)
                 continue
-            except SourceExhausted:
-                logger.warning("head '%s': %s ended; no more data", self.name, source.description)
+            except SourceExhausted as exc:
+                logger.warning("head '%s': %s; no more data", self.name, exc)
                 self._announce(mav.MAV_SEVERITY_WARNING, f"avoidd: {self.name} source ended")
                 self.ended = True
                 break

@@ -225,7 +225,7 @@ class FolderSource:
         """Deliver the next pair; raises BrokenFrame for an unreadable one."""
         if self._index >= len(self._pairs):
             if not self._loop:
-                raise SourceExhausted(self.description)
+                raise SourceExhausted(f"{self.description} ended")
             self._index = 0
             self._restarts += 1
         pair = self._pairs[self._index]
@@ -313,6 +313,11 @@ class SideBySideVideoSource:
         self._pacer = Pacer(self._fps) if paced else None
         self._seq = 0
         self._restarts = 0
+        count = float(self._capture.get(cv2.CAP_PROP_FRAME_COUNT) or 0.0)
+        self._announced = int(count) if 0 < count < 1e9 else None
+        """Frames the file's header announces (None: it does not say)."""
+        self._in_pass = 0
+        self._said_short = False
 
     def _open(self) -> cv2.VideoCapture:
         capture = cv2.VideoCapture(str(self._path))
@@ -325,18 +330,40 @@ class SideBySideVideoSource:
         """What the source reads, for logs and errors."""
         return f"side-by-side video {self._path}"
 
+    def _short(self) -> str | None:
+        """How the pass that just ended fell short of the announced count (None: it did not).
+
+        A frame or 1 % less is allowed: some containers' counts are estimates.
+        """
+        announced = self._announced
+        if announced is None or announced - self._in_pass <= max(1, announced // 100):
+            return None
+        return (
+            f"after {self._in_pass} of the {announced} frames its header announces: the file "
+            "is truncated or damaged"
+        )
+
     def read(self) -> StereoFrame:
         """Deliver the next frame split into its two halves."""
         ok, image = self._capture.read()
         if not ok and self._loop and self._seq > 0:
+            short = self._short()
+            if short is not None and not self._said_short:
+                logger.warning("%s ended %s; starting over", self.description, short)
+                self._said_short = True
             self._capture.release()
             self._capture = self._open()
             self._restarts += 1
+            self._in_pass = 0
             ok, image = self._capture.read()
         if not ok or image is None:
-            raise SourceExhausted(self.description)
+            short = self._short()
+            if short is None:
+                raise SourceExhausted(f"{self.description} ended")
+            raise SourceExhausted(f"{self.description} ended {short}", early=True)
         seq = self._seq
         self._seq += 1
+        self._in_pass += 1
         if self._pacer is not None:
             t_capture_ns = self._pacer.wait()
         else:
