@@ -111,17 +111,27 @@ def test_hostile_yaml_is_one_clear_line(
             b"t_capture_ns,left,right\n1,000.png,000.png\n2,caf\xe9.png,001.png\n",
             "frames.csv:3: byte 0xe9 is not UTF-8",
         ),
+        # A bad row early in a long index is reported without reading on (10 MB here).
+        (b"t_capture_ns\n1\nxyz\n" + b"5\n" * 5_000_000, "frames.csv:3: t_capture_ns is not"),
+        (b"t_capture_ns\n1\n2\n3\n", "frames.csv: more rows than the 2 images in left/"),
+        (b"t_capture_ns\n1\n", "frames.csv: 1 rows but 2 images in left/"),
+        # Larger than an index may be (a sparse file: nothing is written): refused unread.
+        (None, "frames.csv: 70 MB, larger than the 64 MB an index may be"),
     ],
 )
 def test_a_bad_frames_csv_is_one_line_naming_file_and_line(
     tmp_path: Path,
     capsys: pytest.CaptureFixture[str],
     caplog: pytest.LogCaptureFixture,
-    csv: bytes,
+    csv: bytes | None,
     fragment: str,
 ) -> None:
     recording = _pairs(tmp_path / "rec", 2)
-    (recording / "frames.csv").write_bytes(csv)
+    if csv is None:
+        with (recording / "frames.csv").open("wb") as index:
+            index.truncate(70_000_000)
+    else:
+        (recording / "frames.csv").write_bytes(csv)
     config = _config(tmp_path, {"kind": "files", "path": "rec"}, mavlink=True)
     code, lines = _check(config, capsys)
     assert code == 2

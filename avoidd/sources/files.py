@@ -32,6 +32,8 @@ VEHICLE_COLUMNS = ("yaw_deg", "north_m", "east_m", "down_m")
 an empty cell is unknown)."""
 MAX_T_CAPTURE_NS = 2**63 - 1
 """Capture times are monotonic nanoseconds: 0 to the largest signed 64-bit number."""
+MAX_INDEX_BYTES = 64_000_000
+"""Largest ``frames.csv`` read: about 400,000 rows with every column (hours of frames)."""
 
 
 @dataclass(frozen=True)
@@ -93,6 +95,12 @@ def _vehicle(row: dict[str, str], columns: list[str], where: str) -> VehicleSamp
 def _read_utf8(path: Path) -> str:
     """A text file's content; bytes that are not UTF-8 are an error naming the line."""
     try:
+        size = path.stat().st_size
+        if size > MAX_INDEX_BYTES:
+            raise SourceError(
+                f"{path}: {size / 1e6:.0f} MB, larger than the {MAX_INDEX_BYTES // 1_000_000} MB "
+                "an index may be (about 400,000 frames with every column); split the recording"
+            )
         data = path.read_bytes()
     except OSError as exc:
         raise SourceError(f"{path}: cannot read ({exc.strerror or exc})") from exc
@@ -118,7 +126,6 @@ def _read_index(folder: Path, path: Path) -> list[_Pair]:
     fields = set(reader.fieldnames or ())
     if "t_capture_ns" not in fields:
         raise SourceError(f"{path}: needs a header with a 't_capture_ns' column")
-    rows = list(reader)
     named = {"left", "right"} <= fields
     has_pose = set(POSE_COLUMNS) <= fields
     if not has_pose and fields & set(POSE_COLUMNS):
@@ -129,14 +136,20 @@ def _read_index(folder: Path, path: Path) -> list[_Pair]:
     vehicle_columns = [c for c in VEHICLE_COLUMNS if c in fields]
     left_images = [] if named else _images(left_dir)
     right_images = [] if named else _images(right_dir)
-    if not named and len(rows) != len(left_images):
-        raise SourceError(
-            f"{path}: {len(rows)} rows but {len(left_images)} images in left/; "
+
+    def disagree(rows: str) -> SourceError:
+        return SourceError(
+            f"{path}: {rows} {len(left_images)} images in left/; "
             "add 'left' and 'right' columns or make the counts agree"
         )
+
+    # Each row is checked as it is read: a broken one is reported at once, however long
+    # the file is.
     pairs = []
-    for number, row in enumerate(rows):
+    for number, row in enumerate(reader):
         line = number + 2
+        if not named and number >= len(left_images):
+            raise disagree("more rows than the")
         try:
             t_ns = int(row["t_capture_ns"])
         except (TypeError, ValueError) as exc:
@@ -153,6 +166,8 @@ def _read_index(folder: Path, path: Path) -> list[_Pair]:
         else:
             left, right = left_images[number], right_images[number]
         pairs.append(_Pair(left, right, t_ns, pose, vehicle))
+    if not named and len(pairs) != len(left_images):
+        raise disagree(f"{len(pairs)} rows but")
     return pairs
 
 
