@@ -138,6 +138,29 @@ def _folded(distances: list[int]) -> list[int]:
     return [int(d) for d in distances[:36]]
 
 
+def _push_story(run: Px4Run, sent: list[tuple[int, Any]]) -> str:
+    """Second by second from the push's start: where the vehicle was, how fast, and the nearest
+    reading avoidd sent (None: every bin unknown), with what avoidd and PX4 said: why a push
+    went wrong."""
+    summary = run.summary
+    story = []
+    for second in range(int(summary.flight_s) + 1):
+        samples = [x for x in summary.samples if second <= x.t_s < second + 1]
+        start_ns, end_ns = run._t0_ns + second * 10**9, run._t0_ns + (second + 1) * 10**9
+        maps = [m for t, m in sent if start_ns <= t < end_ns]
+        known = [d for m in maps for d in _folded(m.distances) if d != UNKNOWN_CM]
+        if samples:
+            x = samples[-1]
+            story.append(
+                f"{second}s N{x.north_m:.1f} E{x.east_m:.1f} {x.speed_m_s:.1f}m/s "
+                f"maps {len(maps)} nearest {min(known, default=None)}"
+            )
+    return (
+        f"{'; '.join(story)}; heading before lining up {run.heading_before_push_deg}; "
+        f"avoidd {summary.states}; PX4 said {summary.autopilot_said}"
+    )
+
+
 async def test_px4_collision_prevention_stops_a_pushed_vehicle_on_avoidd_data(
     px4_sitl_dir: Path, monkeypatch: pytest.MonkeyPatch
 ) -> None:
@@ -156,10 +179,11 @@ async def test_px4_collision_prevention_stops_a_pushed_vehicle_on_avoidd_data(
         f"{closest.clearance_m + radius_m:.2f} m, CP_DIST 2.0) at {closest.t_s:.1f} s; top speed "
         f"{max(s.speed_m_s for s in summary.samples):.1f} m/s; end N{summary.final_ne_m[0]:.2f}; "
         f"longest gap between avoidd's OBSTACLE_DISTANCE {_longest_gap_s(sent):.2f} s; "
-        f"test {time.monotonic() - t0:.0f} s"
+        f"heading before lining up {run.heading_before_push_deg:.1f} deg; end E"
+        f"{summary.final_ne_m[1]:.2f}; test {time.monotonic() - t0:.0f} s"
     )
-    assert not summary.collided
-    assert summary.passed, summary.as_json()
+    assert not summary.collided, _push_story(run, sent)
+    assert summary.passed, f"{summary.failures}: {_push_story(run, sent)}"
     # Full stick moved it most of the way (PX4 flew), and it stopped short of the wall.
     assert max(s.north_m for s in summary.samples) > 6.0
     assert closest.clearance_m + radius_m > 1.5
@@ -231,7 +255,8 @@ async def test_px4_blocks_motion_into_bins_avoidd_reports_unknown_after_its_came
         f"{max(s.speed_m_s for s in stopping):.2f} m/s), then {held_travel:.2f} m of drift over "
         f"{replug_s - 3:.0f} s at full stick (top speed {max(s.speed_m_s for s in held):.2f} "
         f"m/s); with the camera back {total_travel:.2f} m in all, closest edge "
-        f"{closest.clearance_m:.2f} m; test {time.monotonic() - t0:.0f} s"
+        f"{closest.clearance_m:.2f} m; heading before lining up "
+        f"{run.heading_before_push_deg:.1f} deg; test {time.monotonic() - t0:.0f} s"
     )
     # avoidd said "unknown" in every bin while blind (within its max age of the unplug).
     unknown = [m for t, m in sent if push_ns + 1_000_000_000 <= t <= push_ns + replug_s * 1e9]
@@ -257,7 +282,7 @@ async def test_px4_blocks_motion_into_bins_avoidd_reports_unknown_after_its_came
     known = [m for m in seen_again if set(_folded(m.distances)) != {UNKNOWN_CM}]
     assert total_travel > 4.0, (
         f"with the camera back: {len(known)} of avoidd's {len(seen_again)} maps knew a bin; "
-        f"PX4 said {summary.autopilot_said}; avoidd's states {summary.states}"
+        f"{_push_story(run, sent)}"
     )
 
 

@@ -319,6 +319,7 @@ class StickStream:
 
     Attributes:
         forward: Pitch stick, -1000 (back) to 1000 (forward); read at every send.
+        yaw: Yaw stick, -1000 (turn left) to 1000 (turn right); read at every send.
         target_system: The autopilot's system id; read at every send.
         sent: Messages sent.
         longest_gap_s: Longest time between two sends (a starved thread shows here).
@@ -332,6 +333,7 @@ class StickStream:
         target_system: int,
     ) -> None:
         self.forward = 0
+        self.yaw = 0
         self.target_system = target_system
         self.sent = 0
         self.longest_gap_s = 0.0
@@ -359,7 +361,7 @@ class StickStream:
             peer = self._peer()
             if peer is not None:
                 message = self._codec.build(
-                    "MANUAL_CONTROL", self.target_system, self.forward, 0, 500, 0, 0
+                    "MANUAL_CONTROL", self.target_system, self.forward, 0, 500, self.yaw, 0
                 )
                 with contextlib.suppress(OSError):
                     self._socket.sendto(self._codec.pack(message), peer)

@@ -49,6 +49,8 @@ logger = logging.getLogger(__name__)
 
 _STICK_RATE_HZ = 20.0
 _NAV_TAKEOFF = 22
+_FACING_DEG = 2.0
+"""Push: the nose is north within this many degrees before the stick goes forward."""
 
 
 class Px4Run(ExternalRun):
@@ -93,6 +95,8 @@ class Px4Run(ExternalRun):
         self.setpoints_after_release: int | None = None
         """Setpoints avoidd sent from one cycle after it saw Position mode until 2 s later."""
         self.estimator_s = 0.0
+        self.heading_before_push_deg: float | None = None
+        """Push: the vehicle's heading before it was turned north (degrees)."""
         self._plugged = [True]
         unsupported = [a.action for a in scenario.timeline if not a.action.startswith("camera_")]
         if unsupported:
@@ -215,6 +219,7 @@ class Px4Run(ExternalRun):
             if await gcs.set_mode("px4", "POSCTL") != mav.MAV_RESULT_ACCEPTED:
                 raise LinkError("PX4 refused Position mode")
             await self._wait_mode("POSCTL", 10.0)
+            await self._face_north(20.0)
             self._t0_ns = time.monotonic_ns()
             self.stick_x = 1000
             timeline = asyncio.create_task(self._camera_timeline(), name="timeline")
@@ -223,6 +228,43 @@ class Px4Run(ExternalRun):
             finally:
                 timeline.cancel()
             self.stick_x = 0
+
+    async def _face_north(self, timeout_s: float) -> None:
+        """Turn with the yaw stick until the nose points north, where the push goes.
+
+        The vehicle starts facing north, but has been seen facing 45 degrees off by the push
+        (on a loaded machine: full stick then flew past the wall's end). A pilot lines up first.
+        """
+        daemon = self.daemon
+        sticks = self.sticks
+        assert daemon is not None and sticks is not None
+        deadline = time.monotonic() + timeout_s
+        steady_since: float | None = None
+        yaw_deg = math.nan
+        try:
+            while time.monotonic() < deadline:
+                attitude = daemon.vehicle.attitude.newest()
+                if attitude is None:
+                    await asyncio.sleep(0.1)
+                    continue
+                yaw_deg = math.degrees(attitude.yaw_rad)
+                if self.heading_before_push_deg is None:
+                    self.heading_before_push_deg = yaw_deg
+                    logger.info("push: heading %.1f degrees before lining up", yaw_deg)
+                if abs(yaw_deg) <= _FACING_DEG:
+                    steady_since = steady_since or time.monotonic()
+                    if time.monotonic() - steady_since >= 0.5:
+                        return
+                else:
+                    steady_since = None
+                # Proportional, at most a third of the stick: no overshoot to speak of.
+                sticks.yaw = round(max(-330.0, min(330.0, -20.0 * yaw_deg)))
+                if abs(yaw_deg) <= _FACING_DEG:
+                    sticks.yaw = 0
+                await asyncio.sleep(0.05)
+        finally:
+            sticks.yaw = 0
+        raise LinkError(f"PX4 did not turn north within {timeout_s:.0f} s (heading {yaw_deg:.0f})")
 
     async def _camera_timeline(self) -> None:
         """The scenario's camera actions, at their times from the start of the push."""
