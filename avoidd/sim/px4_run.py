@@ -49,7 +49,7 @@ logger = logging.getLogger(__name__)
 
 _STICK_RATE_HZ = 20.0
 _NAV_TAKEOFF = 22
-_FACING_DEG = 2.0
+_FACING_DEG = 3.0
 """Push: the nose is north within this many degrees before the stick goes forward."""
 
 
@@ -257,10 +257,13 @@ class Px4Run(ExternalRun):
                         return
                 else:
                     steady_since = None
-                # Proportional, at most a third of the stick: no overshoot to speak of.
-                sticks.yaw = round(max(-330.0, min(330.0, -20.0 * yaw_deg)))
-                if abs(yaw_deg) <= _FACING_DEG:
-                    sticks.yaw = 0
+                # Proportional, at most 30 % of the stick (PX4's yaw stick is exponential: a
+                # small deflection turns slowly), none within the band: it holds the heading.
+                sticks.yaw = (
+                    0
+                    if abs(yaw_deg) <= _FACING_DEG
+                    else round(max(-300.0, min(300.0, -10.0 * yaw_deg)))
+                )
                 await asyncio.sleep(0.05)
         finally:
             sticks.yaw = 0
