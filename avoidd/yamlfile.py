@@ -333,7 +333,7 @@ def _format_error(
         key = str(path[-1]) if path else ""
         here = _names_at(model, err["loc"][:-1]) or names
         close = difflib.get_close_matches(key, sorted(here), n=1, cutoff=0.6)
-        if key in names and key not in here:
+        if (key in names and key not in here) or close[:1] == [key]:
             # Spelt right, but a key of another section or source kind (a files source
             # given a synthetic camera's seed): suggesting itself would not help.
             hint = "a key of another section or kind, not of this one; remove it here"
@@ -365,34 +365,40 @@ def _models_in(annotation: Any) -> list[type[BaseModel]]:
     return found
 
 
-def _tags(model: type[BaseModel]) -> tuple[Any, ...]:
-    """The values of a model's ``kind`` (its tag in a discriminated union), if it has one."""
-    kind = model.model_fields.get("kind")
-    return typing.get_args(kind.annotation) if kind is not None else ()
+def _keys(model: type[BaseModel]) -> dict[str, Any]:
+    """A model's fields by the key a file gives them (the alias where there is one)."""
+    return {info.alias or name: info for name, info in model.model_fields.items()}
+
+
+def _tags(model: type[BaseModel]) -> set[Any]:
+    """The values of a model's literal fields (``kind``, ``shape``: its tag under a union)."""
+    return {
+        value
+        for info in model.model_fields.values()
+        if typing.get_origin(info.annotation) is typing.Literal
+        for value in typing.get_args(info.annotation)
+    }
 
 
 def _names_at(model: type[BaseModel], loc: tuple[int | str, ...]) -> set[str]:
     """The keys valid in the mapping at ``loc`` (every variant's, under a union).
 
-    A part of ``loc`` that is no field (a list index, a union's tag, a mapping's key) keeps
-    the models found so far.
+    A part of ``loc`` that is no key (a list index, a mapping's key) keeps the models found
+    so far; a union's tag keeps the variants it names.
     """
     models = [model]
     for part in loc:
-        inner = [
-            found
-            for m in models
-            if isinstance(part, str) and part in m.model_fields
-            for found in _models_in(m.model_fields[part].annotation)
-        ]
-        if inner:
-            models = inner
-        elif isinstance(part, str) and not any(part in m.model_fields for m in models):
-            tagged = [m for m in models if part in _tags(m)]
-            models = tagged or models
-        elif isinstance(part, str):
-            return set()  # a field that holds no model
-    return {name for m in models for name in m.model_fields}
+        if not isinstance(part, str):
+            continue
+        holding = [_keys(m)[part] for m in models if part in _keys(m)]
+        if holding:
+            models = [found for info in holding for found in _models_in(info.annotation)]
+            if not models:
+                return set()  # a field that holds no model
+            continue
+        tagged = [m for m in models if part in _tags(m)]
+        models = tagged or models
+    return {key for m in models for key in _keys(m)}
 
 
 def _field_names(model: type[BaseModel]) -> set[str]:

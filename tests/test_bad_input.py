@@ -113,7 +113,7 @@ def test_hostile_yaml_is_one_clear_line(
         ),
         # A bad row early in a long index is reported without reading on (10 MB here).
         (b"t_capture_ns\n1\nxyz\n" + b"5\n" * 5_000_000, "frames.csv:3: t_capture_ns is not"),
-        (b"t_capture_ns\n1\n2\n3\n", "frames.csv: more rows than the 2 images in left/"),
+        (b"t_capture_ns\n1\n2\n3\n", "frames.csv:4: more rows than the 2 images in left/"),
         (b"t_capture_ns\n1\n", "frames.csv: 1 rows but 2 images in left/"),
         # Larger than an index may be (a sparse file: nothing is written): refused unread.
         (None, "frames.csv: 70 MB, larger than the 64 MB an index may be"),

@@ -564,3 +564,33 @@ def test_allow_unsigned_takes_only_mavlink_message_names(tmp_path: Path) -> None
         f"{tmp_path}/avoidd.yaml:14: mavlink.signing.allow_unsigned[2]: 'RADIO_STATUSS' is not "
         "a MAVLink message name (e.g. RADIO_STATUS) (got 'RADIO_STATUSS')"
     ]
+
+
+def test_key_hints_follow_aliases_and_every_kind_of_tag(tmp_path: Path) -> None:
+    """Hints come from the keys valid where the mistake is: a scenario's ``pass`` (the field
+    ``passing``), an obstacle's own ``shape`` (not every shape's keys)."""
+    from avoidd.config.sim import load_scenario, load_world
+
+    world = tmp_path / "world.yaml"
+    world.write_text(
+        "version: 1\nobstacles:\n"
+        "  - {shape: wall, start_ne_m: [12, -6], end_ne_m: [12, 6], height_m: 8, diameter_m: 3}\n"
+    )
+    with pytest.raises(ConfigError) as caught:
+        load_world(world)
+    assert caught.value.lines == [
+        f"{world}:3: obstacles[0].diameter_m: unknown key; a key of another section or kind, "
+        "not of this one; remove it here"
+    ]
+    scenario = tmp_path / "scenario.yaml"
+    scenario.write_text(
+        f"version: 1\nname: x\nworld: {world}\ngoal: {{north_m: 24, east_m: 0, altitude_m: 2}}\n"
+        "pass: {no_collision: true, closest_aproach_m: [0.5, 2.0], fps: 3}\n"
+    )
+    with pytest.raises(ConfigError) as caught:
+        load_scenario(scenario)
+    assert f"{scenario}:5: pass.closest_aproach_m: unknown key; did you mean " in str(caught.value)
+    assert "'closest_approach_m'?" in str(caught.value)
+    assert f"{scenario}:5: pass.fps: unknown key; a key of another section or kind" in str(
+        caught.value
+    )

@@ -55,9 +55,9 @@ HOME = (-35.363261, 149.165230, 584.0)
 Mode = Literal["planner", "push"]
 
 _NAV_TAKEOFF = 22
+"""MAV_CMD_NAV_TAKEOFF (param 7: the altitude)."""
 _SAID_KEPT = 12
 """The autopilot's last STATUSTEXTs kept in a run's summary."""
-"""MAV_CMD_NAV_TAKEOFF (param 7: the altitude)."""
 _VELOCITY_AND_YAW = 0x09C7
 """SET_POSITION_TARGET type mask: velocity and yaw angle (no position, acceleration, yaw rate).
 
@@ -246,14 +246,19 @@ class ExternalRun:
         )
         self.daemon = daemon
         task: asyncio.Task[int] | None = None
+        ended: BaseException | None = None
         try:
             gcs = await sitl.start(timeout_s=60.0)
             self.gcs = gcs
             task = asyncio.create_task(daemon.run(), name="avoidd")
             await self._fly(gcs)
+        except BaseException as exc:
+            ended = exc
+            raise
         finally:
             if task is not None:
                 await daemon.stop_and_wait(task)
+            self._wind_up(ended)
             await sitl.stop()
         self._judge()
         return self.summary
@@ -433,9 +438,19 @@ class ExternalRun:
             said = self.gcs.of_type("STATUSTEXT")[-_SAID_KEPT:]
             summary.autopilot_said = [str(m.text) for m in said]
 
+    def _wind_up(self, ended: BaseException | None) -> None:
+        """Keep what was said; for a run that raised, also log it (its summary is not read)."""
+        self._record_what_was_said()
+        if ended is not None:
+            logger.warning(
+                "the run ended early (%s); avoidd's states %s; the autopilot said %s",
+                ended,
+                self.summary.states,
+                self.summary.autopilot_said,
+            )
+
     def _judge(self) -> None:
         summary = self.summary
-        self._record_what_was_said()
         criteria = self.scenario.passing
         if not summary.samples:
             summary.failures.append("no position reports after take-off")

@@ -319,7 +319,8 @@ class StickStream:
 
     Attributes:
         forward: Pitch stick, -1000 (back) to 1000 (forward); read at every send.
-        yaw: Yaw stick, -1000 (turn left) to 1000 (turn right); read at every send.
+        yaw: Yaw stick, -1000 (turn left) to 1000 (turn right, clockwise seen from above, as
+            PX4 reads MANUAL_CONTROL's ``r``); read at every send.
         target_system: The autopilot's system id; read at every send.
         sent: Messages sent.
         longest_gap_s: Longest time between two sends (a starved thread shows here).

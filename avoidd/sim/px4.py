@@ -98,6 +98,14 @@ class Px4Sitl:
     def _prepare(self) -> Path:
         """A fresh folder with ``bin`` (links to px4, avoidd's px4-rc.params) and ``work``."""
         root = Path(tempfile.mkdtemp(prefix="avoidd-px4-"))
+        try:
+            self._fill(root)
+        except BaseException:
+            shutil.rmtree(root, ignore_errors=True)
+            raise
+        return root
+
+    def _fill(self, root: Path) -> None:
         bin_dir = root / "bin"
         bin_dir.mkdir()
         # PX4's build makes px4-<module> links to px4; the start-up script calls them through
@@ -119,7 +127,6 @@ class Px4Sitl:
         lines.extend(f"param set {name} {value:g}" for name, value in self.extra_params.items())
         (bin_dir / "px4-rc.params").write_text("\n".join(lines) + "\n")
         (root / "work").mkdir()
-        return root
 
     async def start(self, timeout_s: float = 30.0) -> GroundStation:
         """Start the binary, listen on the GCS link and wait for the first heartbeat.

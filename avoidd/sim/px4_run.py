@@ -51,6 +51,9 @@ _STICK_RATE_HZ = 20.0
 _NAV_TAKEOFF = 22
 _FACING_DEG = 3.0
 """Push: the nose is north within this many degrees before the stick goes forward."""
+_YAW_STICK_DEAD = 120.0
+"""Yaw stick just past PX4's dead zone (``MPC_HOLD_DZ`` 0.1 of full stick: 100)."""
+_YAW_STICK_MAX = 300.0
 
 
 class Px4Run(ExternalRun):
@@ -121,12 +124,16 @@ class Px4Run(ExternalRun):
         )
         self.daemon = daemon
         task: asyncio.Task[int] | None = None
+        ended: BaseException | None = None
         try:
             gcs = await sitl.start(timeout_s=30.0)
             self.gcs = gcs
             task = asyncio.create_task(daemon.run(), name="avoidd")
             self.sticks = gcs.sticks(_STICK_RATE_HZ, forward=self._stick_x)
             await self._fly_px4(gcs, sitl)
+        except BaseException as exc:
+            ended = exc
+            raise
         finally:
             if self.sticks is not None:
                 self.sticks.stop()
@@ -137,6 +144,7 @@ class Px4Run(ExternalRun):
                 )
             if task is not None:
                 await daemon.stop_and_wait(task)
+            self._wind_up(ended)
             await sitl.stop()
         self._judge()
         return self.summary
@@ -257,13 +265,13 @@ class Px4Run(ExternalRun):
                         return
                 else:
                     steady_since = None
-                # Proportional, at most 30 % of the stick (PX4's yaw stick is exponential: a
-                # small deflection turns slowly), none within the band: it holds the heading.
-                sticks.yaw = (
-                    0
-                    if abs(yaw_deg) <= _FACING_DEG
-                    else round(max(-300.0, min(300.0, -10.0 * yaw_deg)))
-                )
+                # Past PX4's stick dead zone (MPC_HOLD_DZ, 10 % of the stick) and then
+                # proportional, at most 30 %; centred within the band: PX4 holds the heading.
+                if abs(yaw_deg) <= _FACING_DEG:
+                    sticks.yaw = 0
+                else:
+                    deflection = min(_YAW_STICK_MAX, _YAW_STICK_DEAD + 10.0 * abs(yaw_deg))
+                    sticks.yaw = round(-math.copysign(deflection, yaw_deg))
                 await asyncio.sleep(0.05)
         finally:
             sticks.yaw = 0

@@ -137,19 +137,16 @@ def _read_index(folder: Path, path: Path) -> list[_Pair]:
     left_images = [] if named else _images(left_dir)
     right_images = [] if named else _images(right_dir)
 
-    def disagree(rows: str) -> SourceError:
-        return SourceError(
-            f"{path}: {rows} {len(left_images)} images in left/; "
-            "add 'left' and 'right' columns or make the counts agree"
-        )
-
     # Each row is checked as it is read: a broken one is reported at once, however long
     # the file is.
     pairs = []
     for number, row in enumerate(reader):
-        line = number + 2
+        line = reader.line_num  # the row's last line (a quoted cell may hold line breaks)
         if not named and number >= len(left_images):
-            raise disagree("more rows than the")
+            raise SourceError(
+                f"{path}:{line}: more rows than the {len(left_images)} images in left/; "
+                "add 'left' and 'right' columns or make the counts agree"
+            )
         try:
             t_ns = int(row["t_capture_ns"])
         except (TypeError, ValueError) as exc:
@@ -167,7 +164,10 @@ def _read_index(folder: Path, path: Path) -> list[_Pair]:
             left, right = left_images[number], right_images[number]
         pairs.append(_Pair(left, right, t_ns, pose, vehicle))
     if not named and len(pairs) != len(left_images):
-        raise disagree(f"{len(pairs)} rows but")
+        raise SourceError(
+            f"{path}: {len(pairs)} rows but {len(left_images)} images in left/; "
+            "add 'left' and 'right' columns or make the counts agree"
+        )
     return pairs
 
 
