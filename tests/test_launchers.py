@@ -5,7 +5,6 @@ from __future__ import annotations
 
 import asyncio
 import os
-import socket
 import stat
 import tempfile
 from pathlib import Path
@@ -31,15 +30,6 @@ def _group_gone(pid: int) -> bool:
     return False
 
 
-def _udp_bindable(port: int) -> bool:
-    with socket.socket(socket.AF_INET, socket.SOCK_DGRAM) as probe:
-        try:
-            probe.bind(("127.0.0.1", port))
-        except OSError:
-            return False
-    return True
-
-
 @pytest.fixture
 def ended(monkeypatch: pytest.MonkeyPatch, tmp_path: Path) -> list[int]:
     """Pids of the processes the launchers ended; their work folders go under tmp_path/tmp."""
@@ -61,7 +51,7 @@ def ended(monkeypatch: pytest.MonkeyPatch, tmp_path: Path) -> list[int]:
 async def test_a_px4_that_never_answers_leaves_no_process_socket_or_folder(
     tmp_path: Path, ended: list[int]
 ) -> None:
-    if not all(_udp_bindable(p) for p in (*px4.PX4_PORTS, px4.GCS_PORT)):
+    if not all(px4._udp_free(p) for p in (*px4.PX4_PORTS, px4.GCS_PORT)):
         pytest.skip("PX4's fixed UDP ports are in use (another PX4 or ground station runs)")
     _silent_binary(tmp_path / "px4" / "bin" / "px4")
     (tmp_path / "px4" / "etc").mkdir()
@@ -71,7 +61,7 @@ async def test_a_px4_that_never_answers_leaves_no_process_socket_or_folder(
     assert len(ended) == 1 and _group_gone(ended[0])
     assert sitl.process is None and sitl.gcs is None
     assert not any((tmp_path / "tmp").iterdir())  # the work folder is gone
-    assert _udp_bindable(px4.GCS_PORT)  # the ground station's socket is closed
+    assert px4._udp_free(px4.GCS_PORT)  # the ground station's socket is closed
 
 
 async def test_an_ardupilot_that_never_answers_leaves_no_process_or_folder(
