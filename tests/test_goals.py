@@ -111,6 +111,24 @@ def test_refusals_say_why_with_the_result_a_ground_station_understands() -> None
         assert refusal.reason
 
 
+def test_the_lowest_goal_is_measured_from_home_when_home_is_known() -> None:
+    """PX4's local origin can sit 2 m above or below the ground (its estimator's start): a
+    goal 2.5 m above home with home 2 m below the origin is 0.5 m above the origin, and fine;
+    one 0.3 m above home with home 3 m above the origin is 3.3 m above it, and too low."""
+    relative = mav.MAV_FRAME_GLOBAL_RELATIVE_ALT_INT
+    lat, lon = ORIGIN.lat_deg + 0.001, ORIGIN.lon_deg
+    low_home = goals.Frame(ORIGIN, home_up_m=-2.0, altitude_m=1.0)
+    taken = goals.reposition(_reposition(relative, lat, lon, 2.5), low_home)
+    assert isinstance(taken, Goal) and taken.altitude_m == pytest.approx(0.5)
+    high_home = goals.Frame(ORIGIN, home_up_m=3.0, altitude_m=5.0)
+    refused = goals.reposition(_reposition(relative, lat, lon, 0.3), high_home)
+    assert isinstance(refused, goals.Refusal) and "0.5 m above ground" in refused.reason
+    local = _Msg("X", coordinate_frame=mav.MAV_FRAME_LOCAL_NED, type_mask=0x0FF8, x=1, y=0, z=-1.0)
+    assert isinstance(goals.local_target(local, goals.Frame(None, -2.0, 1.0)), Goal)
+    assert isinstance(goals.local_target(local, high_home), goals.Refusal)
+    assert isinstance(goals.local_target(local), Goal)  # no home: above the origin
+
+
 def test_local_target_needs_local_ned_and_position_bits() -> None:
     ok = _Msg(
         "X", coordinate_frame=mav.MAV_FRAME_LOCAL_NED, type_mask=0x0FF8, x=3.0, y=-2.0, z=-4.0

@@ -347,7 +347,7 @@ class AvoidanceLoop:
             return
         goal: Goal | goals.Refusal
         if kind == "SET_POSITION_TARGET_LOCAL_NED":
-            goal = goals.local_target(message)
+            goal = goals.local_target(message, self._frame())
         elif kind == "SET_POSITION_TARGET_GLOBAL_INT":
             goal = goals.global_target(message, self._frame())
         elif kind == "COMMAND_INT" and int(message.command) == mav.MAV_CMD_DO_REPOSITION:

@@ -18,7 +18,8 @@ from avoidd.mavlink.mission import MissionItem
 from avoidd.planner.core import Goal
 
 MIN_ALTITUDE_M = 0.5
-"""Lowest goal altitude above the origin (avoidd does not land)."""
+"""Lowest goal height above the ground (avoidd does not land): above home when home is known
+(a PX4 estimator's origin can sit 2 m above or below the ground), else above the origin."""
 MAX_DISTANCE_M = 10_000.0
 """Farthest goal from the origin."""
 
@@ -55,22 +56,29 @@ class Frame:
     altitude_m: float | None
 
 
-def _checked(goal: Goal) -> Goal | Refusal:
+def _checked(goal: Goal, frame: Frame | None) -> Goal | Refusal:
     values = (goal.north_m, goal.east_m, goal.altitude_m)
     if not all(math.isfinite(v) for v in values):
         return Refusal(mav.MAV_RESULT_DENIED, "position not finite")
-    if goal.altitude_m < MIN_ALTITUDE_M:
-        return Refusal(mav.MAV_RESULT_DENIED, "altitude below 0.5 m")
+    ground_m = frame.home_up_m if frame is not None and frame.home_up_m is not None else 0.0
+    if goal.altitude_m - ground_m < MIN_ALTITUDE_M:
+        return Refusal(mav.MAV_RESULT_DENIED, "less than 0.5 m above ground")
     if math.hypot(goal.north_m, goal.east_m) > MAX_DISTANCE_M:
         return Refusal(mav.MAV_RESULT_DENIED, "more than 10 km from origin")
     return goal
 
 
-def local_target(message: Message) -> Goal | Refusal:
-    """A SET_POSITION_TARGET_LOCAL_NED with a position in MAV_FRAME_LOCAL_NED."""
+def local_target(message: Message, frame: Frame | None = None) -> Goal | Refusal:
+    """A SET_POSITION_TARGET_LOCAL_NED with a position in MAV_FRAME_LOCAL_NED.
+
+    Args:
+        message: The message.
+        frame: The autopilot's home (the ground), when known.
+    """
     if message.coordinate_frame != mav.MAV_FRAME_LOCAL_NED or message.type_mask & 0x7:
         return Refusal(mav.MAV_RESULT_DENIED, "need LOCAL_NED and a position")
-    return _checked(Goal(float(message.x), float(message.y), -float(message.z), "GCS goal"))
+    goal = Goal(float(message.x), float(message.y), -float(message.z), "GCS goal")
+    return _checked(goal, frame)
 
 
 def global_goal(
@@ -107,7 +115,7 @@ def global_goal(
         altitude_m = alt_m + frame.home_up_m
     else:
         return Refusal(mav.MAV_RESULT_DENIED, f"frame {frame_id} not supported")
-    return _checked(Goal(north_m, east_m, altitude_m, label))
+    return _checked(Goal(north_m, east_m, altitude_m, label), frame)
 
 
 def global_target(message: Message, frame: Frame) -> Goal | Refusal:
