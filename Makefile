@@ -6,7 +6,7 @@ VENV := .venv
 BIN := $(VENV)/bin
 CONFIG ?= config/demo.yaml
 
-.PHONY: run test sim lint typecheck pytest format clean config-reference
+.PHONY: run test sim lint typecheck pytest format clean config-reference bench-bad-input
 
 run: $(VENV)/.stamp-run
 	$(BIN)/avoidd run --config $(CONFIG)
@@ -25,6 +25,10 @@ sim: $(VENV)/.stamp-run
 # docs/config-reference.md from the config models (tests/test_config_reference.py checks it).
 config-reference: $(VENV)/.stamp-run
 	$(BIN)/python -m avoidd.config.reference > docs/config-reference.md
+
+# How long check-config takes to refuse each bad input, as separate processes (target: 1 s).
+bench-bad-input: $(VENV)/.stamp-test
+	$(BIN)/python -m tests.bench_bad_input
 
 format: $(VENV)/.stamp-test
 	$(BIN)/ruff format avoidd tests

@@ -292,3 +292,16 @@ def test_a_euroc_sensor_file_gets_the_same_yaml_limits(tmp_path: Path) -> None:
         )  # fmt: skip
         assert result.returncode == 2, result.stderr
         _one_line(result.stderr.splitlines(), *fragments)
+
+
+def test_the_bad_input_benchmark_builds_every_case(tmp_path: Path) -> None:
+    """The benchmark (``make bench-bad-input``) times these cases; here only that it has them
+    all and each is a file (its timings are figures, not assertions)."""
+    from tests import bench_bad_input as bench
+    from tests.test_config_corpus import CASES
+
+    built = [*bench._corpus(tmp_path), *bench._hostile(tmp_path), *bench._indexes(tmp_path)]
+    names = [name for name, _ in built]
+    assert len(built) == len(CASES) + 5 + 6 and len(set(names)) == len(names)
+    assert all(path.is_file() for _, path in built)
+    assert "yaml: alias bomb" in names and "frames.csv: 70 MB (sparse)" in names
