@@ -4,8 +4,9 @@ Every case is a separate ``python -m avoidd check-config FILE`` process, Python'
 avoidd's imports included (what a user waits for). The cases: the broken-configuration corpus
 (``tests/test_config_corpus.py``) and the hostile inputs of ``tests/test_bad_input.py``: a config
 that is not UTF-8, one larger than 1 MB, a YAML alias bomb, deep nesting, a 5000-digit number,
-and ``frames.csv`` indexes that are negative, overflowing, not UTF-8, broken early in 10 MB,
-longer than their images, or 70 MB (sparse). The target (issue 21): each answered within 1 s.
+and the broken ``frames.csv`` indexes of ``BAD_INDEXES`` (negative or overflowing times, not
+UTF-8, broken early in 10 MB, more or fewer rows than images, 70 MB). The target (issue 21):
+each answered within 1 s.
 
 Run: ``.venv/bin/python -m tests.bench_bad_input [--quick] [--json FILE]``. Prints one line per
 case sorted by time, then the median, 95th percentile and maximum next to a bare Python start and
@@ -26,9 +27,9 @@ from collections.abc import Iterator
 from pathlib import Path
 
 from tests.helpers import REPO, synthetic_config
-from tests.test_bad_input import _bomb
+from tests.test_bad_input import BAD_INDEXES, _bomb, bad_recording
 from tests.test_config_corpus import CALIBRATION, CASES, DEMO
-from tests.test_offline_config import _config, _pairs
+from tests.test_offline_config import _config
 
 TARGET_S = 1.0
 
@@ -59,22 +60,10 @@ def _hostile(folder: Path) -> Iterator[tuple[str, Path]]:
 
 
 def _indexes(folder: Path) -> Iterator[tuple[str, Path]]:
-    csvs: dict[str, bytes | None] = {
-        "negative t_capture_ns": b"t_capture_ns\n-5\n100\n",
-        "overflowing t_capture_ns": b"t_capture_ns\n1\n9223372036854775808\n",
-        "not UTF-8": b"t_capture_ns,left,right\n1,000.png,000.png\n2,caf\xe9.png,001.png\n",
-        "bad row early in 10 MB": b"t_capture_ns\n1\nxyz\n" + b"5\n" * 5_000_000,
-        "more rows than images": b"t_capture_ns\n1\n2\n3\n",
-        "70 MB (sparse)": None,
-    }
-    for index, (name, csv) in enumerate(csvs.items()):
+    for index, (csv, fragment) in enumerate(BAD_INDEXES):
+        name = fragment.split(": ", 1)[-1]
         case = folder / f"index-{index}"
-        recording = _pairs(case / "rec", 2)
-        if csv is None:
-            with (recording / "frames.csv").open("wb") as handle:
-                handle.truncate(70_000_000)
-        else:
-            (recording / "frames.csv").write_bytes(csv)
+        bad_recording(case / "rec", csv)
         yield f"frames.csv: {name}", _config(case, {"kind": "files", "path": "rec"}, True)
 
 
