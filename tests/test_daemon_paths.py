@@ -5,6 +5,8 @@ from __future__ import annotations
 
 import asyncio
 import math
+import socket
+import threading
 from pathlib import Path
 from typing import Any
 
@@ -306,3 +308,29 @@ async def test_stop_and_wait_gives_the_exit_code_and_logs_a_run_that_raised_or_h
     assert await daemon.stop_and_wait(hanging, timeout_s=0.2) is None
     assert "avoidd did not stop within 0.2 s" in caplog.text
     assert hanging.cancelled()
+
+
+async def test_stop_and_wait_closes_the_link_of_a_run_that_did_not_stop_in_time(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    """A head thread that takes long to join (a camera read stuck on a busy machine): the run is
+    cancelled mid-shutdown, and its udpin port must still be freed for the next daemon."""
+    port = free_udp_port()
+    config = synthetic_config(tmp_path, f"udpin:127.0.0.1:{port}")
+    daemon, task = await start_daemon(config)
+    assert await wait_for(lambda: bool(daemon.heads) and daemon.heads[0].stats.processed > 0, 15.0)
+    joined = threading.Event()
+
+    def slow_join(self: object, timeout_s: float = 5.0) -> None:
+        joined.wait(3.0)
+
+    monkeypatch.setattr(daemon.heads[0].__class__, "join", slow_join)
+    try:
+        assert await daemon.stop_and_wait(task, timeout_s=0.5) is None
+        probe = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
+        try:
+            probe.bind(("127.0.0.1", port))  # free again: the link was closed
+        finally:
+            probe.close()
+    finally:
+        joined.set()

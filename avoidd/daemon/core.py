@@ -176,6 +176,10 @@ class Daemon:
             logger.error("avoidd did not stop within %.1f s", timeout_s)
         except Exception:
             logger.exception("avoidd ended with an error")
+        # Cancelled or failed part-way through its shutdown, the run may not have closed its
+        # link: a udpin port left bound would refuse the next daemon (a simulation's next run).
+        with contextlib.suppress(Exception):
+            await self.link.close()
         return None
 
     def announce(self, severity: int, text: str, key: str | None = None) -> None:

@@ -67,6 +67,9 @@ class _Datagram(asyncio.DatagramProtocol):
         # ICMP port unreachable while nobody listens yet: expected with udpout.
         self._owner.send_errors += 1
 
+    def connection_lost(self, exc: Exception | None) -> None:
+        self._owner.socket_closed.set()
+
 
 class _UdpTransport:
     """UDP out (to a fixed address) or in (listening).
@@ -85,6 +88,8 @@ class _UdpTransport:
         self._transport: asyncio.DatagramTransport | None = None
         self._peer: Any = None
         self.send_errors = 0
+        self.socket_closed = asyncio.Event()
+        """Set when the socket is closed (asyncio closes it a loop turn after ``close()``)."""
 
     @property
     def connected(self) -> bool:
@@ -137,6 +142,7 @@ class _UdpTransport:
         except OSError as exc:
             raise LinkError(f"MAVLink {spec}: {exc.strerror or exc}; check the address") from exc
         self._transport = transport
+        self.socket_closed.clear()
 
     def send(self, data: bytes) -> bool:
         if self._transport is None or self._peer is None:
@@ -152,9 +158,13 @@ class _UdpTransport:
         return True
 
     async def close(self) -> None:
-        if self._transport is not None:
-            self._transport.close()
-            self._transport = None
+        transport, self._transport = self._transport, None
+        if transport is None:
+            return
+        transport.close()
+        # The port is free once this returns (the next daemon or test binds it at once).
+        with contextlib.suppress(TimeoutError):
+            await asyncio.wait_for(self.socket_closed.wait(), 1.0)
 
 
 def _write_stream(writer: asyncio.StreamWriter | None, data: bytes) -> bool:
