@@ -365,3 +365,32 @@ def test_an_accepted_stream_that_never_delivers_is_asked_again_less_and_less_oft
     for decoded in link.codec.decode(autopilot.pack(reading)):
         vehicle.handle(decoded, 300 * s_ns)
     assert quiet.quiet_asks == 0 and quiet.last_ns == 300 * s_ns
+
+
+def test_an_origin_that_never_comes_is_said_once_after_ten_seconds(
+    caplog: pytest.LogCaptureFixture,
+) -> None:
+    """avoidd asks for GPS_GLOBAL_ORIGIN and HOME_POSITION every 2 s until they come; an
+    operator hears once that goals wait for them, not once per request, and never for one
+    that came."""
+    link = _OpenLink()
+    config = MavlinkConfig(connection="udpout:127.0.0.1:9")
+    vehicle = Vehicle(link, config, lambda severity, text, key=None: None)  # type: ignore[arg-type]
+    vehicle.system_id, vehicle.link_up, vehicle.wants_origin = 1, True, True
+    sender = mav.Codec(1, 1)
+    home = sender.build("HOME_POSITION", 0, 0, 0, 0.0, 0.0, -1.5, [1, 0, 0, 0], 0, 0, 0, 0)
+    step_ns, s_ns = 100_000_000, 1_000_000_000
+    for t_ns in range(0, 40 * s_ns, step_ns):
+        vehicle.last_heartbeat_ns = t_ns
+        if t_ns == 4 * s_ns:  # home answers the second request; the origin never comes
+            for decoded in link.codec.decode(sender.pack(home)):
+                vehicle.handle(decoded, t_ns)
+        vehicle.tick(t_ns)
+    warnings = [
+        r.getMessage()
+        for r in caplog.records
+        if r.levelname == "WARNING" and "stream request" not in r.getMessage()  # unanswered
+    ]
+    assert len(warnings) == 1, warnings
+    assert "no GPS_GLOBAL_ORIGIN after 5 requests" in warnings[0]
+    assert vehicle.home_up_m == pytest.approx(1.5) and vehicle.origin is None

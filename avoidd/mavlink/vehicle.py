@@ -42,6 +42,8 @@ _HOME_AFTER_ARMING_NS = 1_000_000_000
 """Home is asked again this long after arming (both autopilots set it when they arm)."""
 _GPS_GLOBAL_ORIGIN = 49
 _HOME_POSITION = 242
+_ORIGIN_ASKS_BEFORE_WARNING = 5
+"""Unanswered requests for the origin or home (10 s) before avoidd says it is still waiting."""
 
 
 class Announce(Protocol):
@@ -151,6 +153,7 @@ class Vehicle:
         """Ask for GPS_GLOBAL_ORIGIN and HOME_POSITION until both are known (global goals
         and missions need them)."""
         self._origin_asked_ns = -(10**18)
+        self._origin_asks: dict[int, int] = {}  # unanswered requests in a row, by message id
         self._home_due_ns: int | None = None
         """Home is to be asked again from then on (set on arming, cleared by a new home)."""
         self.ignored: Counter[int] = Counter()
@@ -576,12 +579,24 @@ class Vehicle:
             )
             if not known
         ]
+        for msg_id in [m for m in self._origin_asks if m not in wanted]:
+            del self._origin_asks[msg_id]  # answered
         if not self.wants_origin or not wanted or self.system_id is None:
             return
         if now_ns - self._origin_asked_ns < _ORIGIN_RETRY_NS:
             return
         self._origin_asked_ns = now_ns
         for msg_id in wanted:
+            asks = self._origin_asks[msg_id] = self._origin_asks.get(msg_id, 0) + 1
+            if asks == _ORIGIN_ASKS_BEFORE_WARNING:
+                name = "GPS_GLOBAL_ORIGIN" if msg_id == _GPS_GLOBAL_ORIGIN else "HOME_POSITION"
+                logger.warning(
+                    "vehicle %s: no %s after %d requests; goals given as latitude and longitude "
+                    "or above home wait for it (has the autopilot a position and an origin?)",
+                    self.system_id,
+                    name,
+                    asks,
+                )
             self._link.send(
                 self._link.codec.build(
                     "COMMAND_LONG",
