@@ -16,12 +16,14 @@ import cv2
 import numpy as np
 import pytest
 
+from avoidd.config import MavlinkConfig
 from avoidd.config.connection import parse_connection
 from avoidd.daemon import Daemon
 from avoidd.daemon.head import LOST_AFTER_BROKEN
 from avoidd.loading import load_all
 from avoidd.logrepeat import RepeatLimiter
 from avoidd.mavlink import codec as mav
+from avoidd.mavlink.link import MavLink
 from avoidd.mavlink.transport import create_transport
 from tests.helpers import REPO, open_udp_peer, synthetic_config, wait_for
 
@@ -184,3 +186,7 @@ def test_pymavlink_signing_notes_are_counted_not_logged(caplog: pytest.LogCaptur
     assert receiver.signature_rejects == 300
     assert mav.PYMAVLINK_NOTES.counts["sig mismatch"] - before == 300
     assert [r for r in caplog.records if r.name.startswith("pymavlink")] == []
+    # ... and the counts are in the link's counters (the "avoidd stopped" line, the stats).
+    link = MavLink(MavlinkConfig(connection="udpout:127.0.0.1:9").link, receiver)
+    notes = link.counters()["pymavlink_notes"]
+    assert isinstance(notes, dict) and notes["sig mismatch"] - before == 300

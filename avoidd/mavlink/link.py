@@ -23,7 +23,7 @@ from dataclasses import dataclass
 
 from avoidd.aio import cancel_task
 from avoidd.config.connection import LinkSpec
-from avoidd.mavlink.codec import Codec, Message, Parser
+from avoidd.mavlink.codec import PYMAVLINK_NOTES, Codec, Message, Parser
 from avoidd.mavlink.transport import Sender, Transport, create_sender_transport
 
 logger = logging.getLogger(__name__)
@@ -296,4 +296,6 @@ class MavLink:
             "signature_rejects": self.signature_rejects,
             "handler_errors": self.handler_errors,
             "strangers": {name: vars(count) for name, count in self.strangers.items()},
+            # pymavlink's per-packet lines, silenced (process-wide: every link's parser).
+            "pymavlink_notes": dict(PYMAVLINK_NOTES.counts),
         }
