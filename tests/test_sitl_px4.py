@@ -319,12 +319,16 @@ async def test_px4_offboard_planner_flies_round_the_wall_and_yields_to_the_pilot
     t0 = time.monotonic()
     run = Px4Run(load_scenario(SCENARIOS / "wall-around.yaml"), px4_sitl_dir, mode="planner")
     summary = await run.run()
+    edges = sorted(s.clearance_m for s in summary.samples)
     print(
-        f"\nplanner: {summary.as_json()}; OFFBOARD {run.offboard_s} s after the request; "
+        f"\nplanner: {summary.as_json()}; edge clearance 1 % quantile "
+        f"{edges[int(0.01 * (len(edges) - 1))] if edges else None}; "
+        f"OFFBOARD {run.offboard_s} s after the request; "
         f"setpoints after Position mode {run.setpoints_after_release}; "
         f"test {time.monotonic() - t0:.0f} s"
     )
-    # The scenario's criteria: no collision, edge clearance >= 0.5 m, goal within 60 s.
+    # The scenario's criteria, the built-in simulator's: no collision, edge clearance >= 0.9 m
+    # in 99 % of the samples, goal within 60 s; and never nearer than 0.5 m.
     assert summary.passed, (summary.failures, summary.states, summary.autopilot_said)
     assert not summary.collided and summary.min_clearance_m >= 0.5
     assert run.offboard_s is not None
