@@ -324,7 +324,8 @@ async def test_px4_offboard_planner_flies_round_the_wall_and_yields_to_the_pilot
         f"\nplanner: {summary.as_json()}; edge clearance 1 % quantile "
         f"{edges[int(0.01 * (len(edges) - 1))] if edges else None}; "
         f"OFFBOARD {run.offboard_s} s after the request; "
-        f"setpoints after Position mode {run.setpoints_after_release}; "
+        f"setpoints after Position mode {run.setpoints_after_release}; sticks' longest gap "
+        f"{run.sticks.longest_gap_s if run.sticks else None} s; "
         f"test {time.monotonic() - t0:.0f} s"
     )
     # The scenario's criteria, the built-in simulator's: no collision, edge clearance >= 0.9 m
