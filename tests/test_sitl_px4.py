@@ -267,18 +267,31 @@ async def test_px4_blocks_motion_into_bins_avoidd_reports_unknown_after_its_came
     start_north = pushed[0].north_m
     # Unplugged at 0 s: avoidd's data is stale after its max age (0.3 s), and PX4 keeps a bin
     # for 0.5 s after its last reading; meanwhile full stick accelerates the vehicle, which
-    # then brakes. From 3 s on it must hold still until the camera is back.
-    stopping = [s for s in pushed if s.t_s < 3.0]
-    held = [s for s in pushed if 3.0 <= s.t_s <= replug_s]
-    stop_travel = max(s.north_m for s in stopping) - start_north
-    held_travel = max(s.north_m for s in held) - min(s.north_m for s in held)
+    # then brakes. From 3 s on it must hold still until the camera is back. Whether PX4 held
+    # is read in its own frame (its estimate, LOCAL_POSITION_NED): the truth also drifts with
+    # the estimator's error (0.1-0.15 m/s under load), which no stick caused.
+    estimate = [
+        (
+            (h.received_ns - push_ns) / 1e9,
+            float(h.message.x),
+            math.hypot(h.message.vx, h.message.vy),
+        )
+        for h in gcs.heard
+        if h.message.get_type() == "LOCAL_POSITION_NED"
+        and gcs.from_autopilot(h.message)
+        and h.received_ns >= push_ns
+    ]
+    stopping = [e for e in estimate if e[0] < 3.0]
+    held = [e for e in estimate if 3.0 <= e[0] <= replug_s]
+    stop_travel = max(e[1] for e in stopping) - estimate[0][1]
+    held_travel = max(e[1] for e in held) - min(e[1] for e in held)
     total_travel = max(s.north_m for s in pushed) - start_north
     closest = min(pushed, key=lambda s: s.clearance_m)
     print(
-        f"\nblind push: stopped after {stop_travel:.2f} m (top speed "
-        f"{max(s.speed_m_s for s in stopping):.2f} m/s), then {held_travel:.2f} m of drift over "
-        f"{replug_s - 3:.0f} s at full stick (top speed {max(s.speed_m_s for s in held):.2f} "
-        f"m/s); with the camera back {total_travel:.2f} m in all, closest edge "
+        f"\nblind push (PX4's estimate): stopped after {stop_travel:.2f} m (top speed "
+        f"{max(e[2] for e in stopping):.2f} m/s), then {held_travel:.2f} m of drift over "
+        f"{replug_s - 3:.0f} s at full stick (top speed {max(e[2] for e in held):.2f} "
+        f"m/s); with the camera back {total_travel:.2f} m in all (truth), closest edge "
         f"{closest.clearance_m:.2f} m; heading before lining up "
         f"{run.heading_before_push_deg:.1f} deg; test {time.monotonic() - t0:.0f} s"
     )
@@ -299,7 +312,7 @@ async def test_px4_blocks_motion_into_bins_avoidd_reports_unknown_after_its_came
     assert all(min(_folded(e.distances)) > e.max_distance for e in echoes)
     # Full stick, and the vehicle did not move into the unknown.
     assert stop_travel < 4.0
-    assert held_travel < 0.6 and max(s.speed_m_s for s in held) < 0.8
+    assert held_travel < 0.6 and max(e[2] for e in held) < 0.8
     # With the camera back, it flew on, without a collision (how near collision prevention
     # lets it come is test_px4_collision_prevention_stops_a_pushed_vehicle_on_avoidd_data's).
     assert not summary.collided

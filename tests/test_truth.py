@@ -65,7 +65,7 @@ def test_truth_is_relative_to_the_start_and_carried_forward() -> None:
     assert not truth.anchor()  # nothing heard yet
     gcs._on_bytes(_hil_state(autopilot))
     assert truth.at(time.monotonic_ns()) is None  # not anchored: no start, no world position
-    assert truth.anchor()
+    assert truth.anchor((0.5, -0.25))  # PX4's estimate puts the vehicle here, not at 0, 0
     # 1e-5 degree of latitude north is 1.11 m; 2.5 m up; flying north-east at 2 m/s, facing east.
     gcs._on_bytes(
         _hil_state(
@@ -79,8 +79,8 @@ def test_truth_is_relative_to_the_start_and_carried_forward() -> None:
     received_ns = gcs.newest["HIL_STATE_QUATERNION"].received_ns
     now = truth.at(received_ns)
     assert now is not None
-    assert now.pose.north_m == pytest.approx(-3.0 + 1.113, abs=0.01)
-    assert now.pose.east_m == pytest.approx(1.0, abs=1e-6)
+    assert now.pose.north_m == pytest.approx(-3.0 + 0.5 + 1.113, abs=0.01)
+    assert now.pose.east_m == pytest.approx(1.0 - 0.25, abs=1e-6)
     assert now.pose.down_m == pytest.approx(-2.5, abs=1e-6)
     assert now.pose.yaw_rad == pytest.approx(math.pi / 2, abs=1e-6)
     assert now.speed_m_s == pytest.approx(2.0 * math.sqrt(2.0), abs=1e-6)

@@ -277,7 +277,10 @@ class Px4Run(ExternalRun):
         raise LinkError(f"PX4 did not turn north within {timeout_s:.0f} s (heading {yaw_deg:.0f})")
 
     async def _anchor_truth(self, gcs: GroundStation, timeout_s: float) -> None:
-        """Ask for the simulation's truth and take the vehicle's place on the ground as the start.
+        """Ask for the simulation's truth; anchor it where PX4's estimate puts the vehicle.
+
+        The vehicle stands on the ground at the scenario's start; the world stands in PX4's
+        frame.
 
         Raises:
             LinkError: PX4 sent no HIL_STATE_QUATERNION within ``timeout_s``.
@@ -291,7 +294,8 @@ class Px4Run(ExternalRun):
             await gcs.request_message_interval(TRUTH_MESSAGE, _TRUTH_RATE_HZ)
             for _ in range(10):
                 await asyncio.sleep(0.1)
-                if truth.anchor():
+                position = self.daemon.vehicle.position if self.daemon is not None else None
+                if position is not None and truth.anchor((position.north_m, position.east_m)):
                     return
         raise LinkError(
             f"PX4 sent no {TRUTH_MESSAGE} (its simulation's truth) within {timeout_s:.0f} s"

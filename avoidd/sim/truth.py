@@ -67,14 +67,21 @@ class GroundTruth:
         self._offset_ne_m = offset_ne_m
         self._max_age_ns = max_age_ns
         self._start: GlobalPoint | None = None
+        self._start_ne_m = (0.0, 0.0)
 
     @property
     def anchored(self) -> bool:
         """Whether the start is known (:meth:`anchor` succeeded)."""
         return self._start is not None
 
-    def anchor(self) -> bool:
+    def anchor(self, estimate_ne_m: tuple[float, float] = (0.0, 0.0)) -> bool:
         """Take where the vehicle is now (on the ground at the scenario's start) as the start.
+
+        Args:
+            estimate_ne_m: Where the autopilot believes the vehicle is now in its local frame:
+                the truth is placed there (plus the start's offset), so that the world stands
+                where the autopilot's frame puts it (its origin need not be where the vehicle
+                stands: PX4's estimate wanders while it settles, by metres on a loaded machine).
 
         Returns:
             False when no fresh truth has come yet.
@@ -84,6 +91,7 @@ class GroundTruth:
             return False
         message = heard.message
         self._start = GlobalPoint(message.lat / 1e7, message.lon / 1e7, message.alt / 1000.0)
+        self._start_ne_m = estimate_ne_m
         return True
 
     def at(self, t_ns: int) -> TruthSample | None:
@@ -103,6 +111,7 @@ class GroundTruth:
         dt_s = max(0.0, age_ns / 1e9)
         vn_m_s, ve_m_s, vd_m_s = message.vx / 100.0, message.vy / 100.0, message.vz / 100.0
         north_m, east_m = north_east_m(start, message.lat / 1e7, message.lon / 1e7)
+        north_m, east_m = north_m + self._start_ne_m[0], east_m + self._start_ne_m[1]
         up_m = message.alt / 1000.0 - start.alt_m
         roll_rad, pitch_rad, yaw_rad = euler_from_quaternion(*message.attitude_quaternion)
         pose = VehiclePose(
