@@ -9,15 +9,17 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from avoidd.config import MavlinkConfig, load_config
+from avoidd.config import MavlinkConfig, PerceptionConfig, load_config
 from avoidd.config.sim import WorldConfig
 from avoidd.errors import BrokenFrame, ConfigError, SourceError
 from avoidd.loading import load_all
 from avoidd.mavlink import codec as mav
+from avoidd.mavlink.attitude import Attitude
 from avoidd.mavlink.geo import GlobalPoint, north_east_m, offset_lat_lon
 from avoidd.mavlink.link import MavLink
 from avoidd.mavlink.mock_autopilot import MockAutopilot
-from avoidd.mavlink.vehicle import Vehicle
+from avoidd.mavlink.vehicle import Rangefinder, Vehicle
+from avoidd.perception.pose import resolve_pose
 from avoidd.sim.lockstep import RIGS
 from avoidd.sim.mav_autopilot import scan_from_message
 from avoidd.sim.pose_source import PoseRenderedSource, VehiclePose, vehicle_pose
@@ -65,7 +67,18 @@ def test_the_wall_ahead_comes_nearer_as_the_reported_pose_does() -> None:
     first, second = source.read(), source.read()
     assert (first.seq, second.seq) == (0, 1)
     assert second.t_capture_ns > first.t_capture_ns
-    assert first.pose is None  # the daemon takes the autopilot's attitude, as for a camera
+    # No attitude (the daemon takes the autopilot's, as for a camera), but the height it was
+    # rendered at, which the daemon prefers to a rangefinder that measures another truth.
+    assert first.pose is not None and first.pose.height_m == 2.0
+    assert math.isnan(first.pose.roll_deg) and math.isnan(first.pose.pitch_deg)
+    config = PerceptionConfig()
+    attitude = Attitude(0, 0.05, -0.02, 1.2)
+    ranged = Rangefinder(first.t_capture_ns, 3.1)
+    resolved = resolve_pose(first.t_capture_ns, first.pose, attitude, ranged, None, config)
+    assert resolved.height_m == 2.0 and resolved.height_source == "simulator"
+    assert resolved.source == "mavlink"
+    assert resolved.roll_deg == pytest.approx(math.degrees(0.05))
+    assert resolved.pitch_deg == pytest.approx(math.degrees(-0.02))
     # The left view's centre is the wall's face: 6 m less half its thickness, then 3 m less.
     face_m = 6.0 - _half_thickness(renderer)
     assert renderer.render(0.0, 0.0, -2.0, 0.0).depth_m[120, 160] == pytest.approx(face_m, abs=0.02)

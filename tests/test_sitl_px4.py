@@ -195,10 +195,10 @@ async def test_px4_collision_prevention_stops_a_pushed_vehicle_on_avoidd_data(
     assert not summary.collided, _push_story(run, sent)
     assert summary.passed, f"{summary.failures}: {_push_story(run, sent)}"
     # Full stick moved it most of the way (PX4 flew), and it stopped short of the wall (the
-    # scenario's closest approach, judged on the simulation's truth). How near PX4 lets it
-    # come is PX4's (seen: 1.4 m from the centre with CP_DIST 2, braking from 3 m/s); what
-    # avoidd told it is avoidd's: its forward reading when the vehicle was closest is the
-    # true distance to the wall, within a stereo camera's error at that range.
+    # scenario's closest approach). How near PX4 lets it come is PX4's (seen: 1.4-1.8 m from
+    # the centre with CP_DIST 2, braking from 3 m/s); what avoidd told it is avoidd's: its
+    # forward reading when the vehicle was closest is the distance to the wall, within a
+    # stereo camera's error at that range.
     assert max(s.north_m for s in summary.samples) > 6.0
     true_m = closest.clearance_m + radius_m
     closest_ns = run._t0_ns + int(closest.t_s * 1e9)
@@ -268,8 +268,7 @@ async def test_px4_blocks_motion_into_bins_avoidd_reports_unknown_after_its_came
     # Unplugged at 0 s: avoidd's data is stale after its max age (0.3 s), and PX4 keeps a bin
     # for 0.5 s after its last reading; meanwhile full stick accelerates the vehicle, which
     # then brakes. From 3 s on it must hold still until the camera is back. Whether PX4 held
-    # is read in its own frame (its estimate, LOCAL_POSITION_NED): the truth also drifts with
-    # the estimator's error (0.1-0.15 m/s under load), which no stick caused.
+    # is read on PX4's LOCAL_POSITION_NED as the ground station hears it.
     estimate = [
         (
             (h.received_ns - push_ns) / 1e9,
@@ -288,10 +287,10 @@ async def test_px4_blocks_motion_into_bins_avoidd_reports_unknown_after_its_came
     total_travel = max(s.north_m for s in pushed) - start_north
     closest = min(pushed, key=lambda s: s.clearance_m)
     print(
-        f"\nblind push (PX4's estimate): stopped after {stop_travel:.2f} m (top speed "
+        f"\nblind push: stopped after {stop_travel:.2f} m (top speed "
         f"{max(e[2] for e in stopping):.2f} m/s), then {held_travel:.2f} m of drift over "
         f"{replug_s - 3:.0f} s at full stick (top speed {max(e[2] for e in held):.2f} "
-        f"m/s); with the camera back {total_travel:.2f} m in all (truth), closest edge "
+        f"m/s); with the camera back {total_travel:.2f} m in all, closest edge "
         f"{closest.clearance_m:.2f} m; heading before lining up "
         f"{run.heading_before_push_deg:.1f} deg; test {time.monotonic() - t0:.0f} s"
     )
@@ -341,8 +340,7 @@ async def test_px4_offboard_planner_flies_round_the_wall_and_yields_to_the_pilot
         f"{run.sticks.longest_gap_s if run.sticks else None} s; "
         f"test {time.monotonic() - t0:.0f} s"
     )
-    # The scenario's criteria, the built-in simulator's: no collision, edge clearance >= 0.9 m
-    # in 99 % of the samples, goal within 60 s; and never nearer than 0.5 m.
+    # The scenario's criteria: no collision, edge clearance >= 0.5 m, goal within 60 s.
     assert summary.passed, (summary.failures, summary.states, summary.autopilot_said)
     assert not summary.collided and summary.min_clearance_m >= 0.5
     assert run.offboard_s is not None

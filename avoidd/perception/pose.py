@@ -26,10 +26,11 @@ def resolve_pose(
     come first. The demo's mock autopilot sways while the synthetic scene is rendered level;
     interpreted with the sway, the ground rose into view as phantom obstacles.
 
-    Attitude: the frame's own; else the autopilot's, interpolated at the capture time; else
-    the configured one. Height: the frame's own; else a downward rangefinder reading taken
-    within ``ground.rangefinder_max_age_ms`` of capture (corrected for the tilt); else the
-    height above home when ``ground.use_altitude`` is on and the position is as fresh; else
+    Attitude: the frame's own (a frame may carry only its height: NaN roll and pitch); else
+    the autopilot's, interpolated at the capture time; else the configured one. Height: the
+    frame's own; else a downward rangefinder reading taken within
+    ``ground.rangefinder_max_age_ms`` of capture (corrected for the tilt); else the height
+    above home when ``ground.use_altitude`` is on and the position is as fresh; else
     ``ground.height_m``.
 
     Args:
@@ -43,7 +44,7 @@ def resolve_pose(
     Returns:
         The pose, naming where each part came from.
     """
-    if recorded is not None:
+    if recorded is not None and math.isfinite(recorded.roll_deg + recorded.pitch_deg):
         roll_deg, pitch_deg, source = recorded.roll_deg, recorded.pitch_deg, recorded.source
     elif attitude is not None:
         roll_deg = math.degrees(attitude.roll_rad)

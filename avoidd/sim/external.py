@@ -383,26 +383,20 @@ class ExternalRun:
             if position is None:
                 continue
             sample = self._measure(position)
-            if push and sample is not None:
+            if push:
                 self._push(gcs, sample, north_goal, east_goal)
 
-    def _measure(self, position: Any) -> Sample | None:
-        """Sample the flight at a LOCAL_POSITION_NED report (None: nothing to measure)."""
+    def _measure(self, position: Any) -> Sample:
         north_m = float(position.x) + self.offset_ne_m[0]
         east_m = float(position.y) + self.offset_ne_m[1]
         altitude_m = -float(position.z) - self.home_up_m
-        speed_m_s = math.hypot(float(position.vx), float(position.vy))
-        return self._record(north_m, east_m, altitude_m, speed_m_s)
-
-    def _record(self, north_m: float, east_m: float, altitude_m: float, speed_m_s: float) -> Sample:
-        """Measure a position against the world and add it to the summary."""
         edge_m = self.world.clearance_m(north_m, east_m, altitude_m) - self.radius_m
         sample = Sample(
             (time.monotonic_ns() - self._t0_ns) / 1e9,
             north_m,
             east_m,
             altitude_m,
-            speed_m_s,
+            math.hypot(float(position.vx), float(position.vy)),
             edge_m,
         )
         summary = self.summary

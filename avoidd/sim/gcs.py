@@ -54,7 +54,6 @@ class GroundStation:
         target_system: The autopilot's system id.
         target_component: The autopilot's component id.
         heard: Every decoded message, oldest first (bounded: the last ``keep``).
-        newest: The newest message of each type from the autopilot itself.
     """
 
     connection: str
@@ -62,7 +61,6 @@ class GroundStation:
     target_component: int = 1
     keep: int = 200_000
     heard: list[Heard] = field(default_factory=list)
-    newest: dict[str, Heard] = field(default_factory=dict)
 
     def __post_init__(self) -> None:
         self.codec = mav.Codec(GCS_SYSTEM_ID, GCS_COMPONENT_ID)
@@ -134,10 +132,7 @@ class GroundStation:
     def _on_bytes(self, data: bytes) -> None:
         now_ns = time.monotonic_ns()
         for message in self.codec.decode(data):
-            heard = Heard(now_ns, message)
-            self.heard.append(heard)
-            if self.from_autopilot(message):
-                self.newest[message.get_type()] = heard
+            self.heard.append(Heard(now_ns, message))
             for predicate, future in list(self._waiters):
                 if not future.done() and predicate(message):
                     future.set_result(message)

@@ -24,7 +24,7 @@ from avoidd.mavlink.vehicle import Vehicle
 from avoidd.sim.render import StereoRenderer
 from avoidd.sim.world import World
 from avoidd.sources.base import FrameSource, Pacer
-from avoidd.types import Mount, RectifiedRig, StereoFrame
+from avoidd.types import FramePose, Mount, RectifiedRig, StereoFrame
 
 
 @dataclass(frozen=True)
@@ -155,9 +155,14 @@ class PoseRenderedSource:
             math.degrees(pose.pitch_rad),
             self._rng,
         )
-        # No recorded pose: like a real camera, the daemon takes the autopilot's attitude at
-        # the capture time.
-        frame = StereoFrame(self._seq, t_capture_ns, pair.left, pair.right, None, None)
+        # Like a real camera's, the frame carries no attitude: the daemon takes the autopilot's
+        # at the capture time. It carries the height it was rendered at, which the daemon
+        # prefers to a rangefinder: a SITL's rangefinder measures its physics' truth, and the
+        # autopilot's estimate (the rendered pose) drifts from that truth (PX4 SIH: by 0.5 to
+        # 1.5 m in 15 s; the rendered ground then stood above the rangefinder's ground plane,
+        # an obstacle 2 m ahead, and PX4's collision prevention would not let the vehicle fly).
+        height = FramePose(math.nan, math.nan, max(-pose.down_m, 0.0), "mavlink", "simulator")
+        frame = StereoFrame(self._seq, t_capture_ns, pair.left, pair.right, None, height)
         self._seq += 1
         return frame
 

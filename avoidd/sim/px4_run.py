@@ -14,31 +14,33 @@ estimator, arms and takes off (``MAV_CMD_NAV_TAKEOFF`` to ``MIS_TAKEOFF_ALT``), 
   OBSTACLE_DISTANCE) stops the vehicle short of the wall.
 
 PX4's SIH vehicle starts at its local origin facing north: scenarios must start at heading 0.
-avoidd's camera is rendered, and the flight judged, from SIH's ground truth
-(:mod:`avoidd.sim.truth`), while avoidd reads PX4's estimate as in flight.
 """
 
 from __future__ import annotations
 
 import asyncio
 import contextlib
+import dataclasses
 import logging
 import math
 import time
 from pathlib import Path
-from typing import Any
 
 from avoidd.config.sim import ScenarioConfig
 from avoidd.config.sources import SourceConfig
 from avoidd.daemon import Daemon
 from avoidd.errors import LinkError
 from avoidd.mavlink import codec as mav
-from avoidd.sim.external import ExternalRun, ExternalSummary, Mode, Sample, daemon_config
+from avoidd.sim.external import ExternalRun, ExternalSummary, Mode, daemon_config
 from avoidd.sim.gcs import GroundStation, StickStream
-from avoidd.sim.pose_source import PoseRenderedSource, UnpluggableSource, VehiclePose
+from avoidd.sim.pose_source import (
+    PoseRenderedSource,
+    UnpluggableSource,
+    VehiclePose,
+    vehicle_pose,
+)
 from avoidd.sim.px4 import ONBOARD_PORT, Px4Sitl
 from avoidd.sim.render import StereoRenderer
-from avoidd.sim.truth import TRUTH_MESSAGE, GroundTruth
 from avoidd.sources.base import FrameSource
 from avoidd.types import Mount, RectifiedRig
 from avoidd.vision.calibration import Calibration
@@ -52,8 +54,6 @@ _FACING_DEG = 3.0
 _YAW_STICK_DEAD = 120.0
 """Yaw stick just past PX4's dead zone (``MPC_HOLD_DZ`` 0.1 of full stick: 100)."""
 _YAW_STICK_MAX = 300.0
-_TRUTH_RATE_HZ = 50.0
-"""HIL_STATE_QUATERNION (the simulation's truth) on the ground station's link."""
 
 
 class Px4Run(ExternalRun):
@@ -100,10 +100,6 @@ class Px4Run(ExternalRun):
         self.estimator_s = 0.0
         self.heading_before_push_deg: float | None = None
         """Push: the vehicle's heading before it was turned north (degrees)."""
-        self.truth: GroundTruth | None = None
-        """The simulated vehicle's true pose: avoidd's camera and the collision check follow it."""
-        self.samples_without_truth = 0
-        """Position reports not sampled: no fresh truth at the time."""
         self._plugged = [True]
         unsupported = [a.action for a in scenario.timeline if not a.action.startswith("camera_")]
         if unsupported:
@@ -132,7 +128,6 @@ class Px4Run(ExternalRun):
         try:
             gcs = await sitl.start(timeout_s=30.0)
             self.gcs = gcs
-            self.truth = GroundTruth(gcs, self.offset_ne_m)
             task = asyncio.create_task(daemon.run(), name="avoidd")
             self.sticks = gcs.sticks(_STICK_RATE_HZ, forward=self._stick_x)
             await self._fly_px4(gcs, sitl)
@@ -162,15 +157,22 @@ class Px4Run(ExternalRun):
         paced: bool,
         input_path: Path | None = None,
     ) -> FrameSource:
-        """The head's source: the world from the simulated vehicle's true pose.
+        """The head's source: the world from the reported pose, heights above home.
 
-        Not from the pose avoidd hears: PX4's estimate drifts from its simulation (a height
-        1.5 m off within 15 s was seen), and a real camera sees from where the vehicle is.
+        PX4's local origin is where its estimator started, up to 2 m above or below the ground
+        here; HOME_POSITION (set at arming, on the ground) says where the ground is.
         """
+        daemon = self.daemon
+        assert daemon is not None
         renderer = StereoRenderer(self.world, rig, Mount())
+        local = vehicle_pose(daemon.vehicle, self.offset_ne_m)
 
         def pose(t_ns: int) -> VehiclePose | None:
-            return None if self.truth is None else self.truth.pose_at(t_ns)
+            found = local(t_ns)
+            home_up_m = daemon.vehicle.home_up_m
+            if found is None or home_up_m is None:
+                return found
+            return dataclasses.replace(found, down_m=found.down_m + home_up_m)
 
         camera = PoseRenderedSource(renderer, pose, self.scenario.fps, seed=self.world.seed)
         return UnpluggableSource(camera, self._plugged)
@@ -188,7 +190,6 @@ class Px4Run(ExternalRun):
 
     async def _fly_px4(self, gcs: GroundStation, sitl: Px4Sitl) -> None:
         self.estimator_s = await sitl.wait_estimator(120.0)
-        await self._anchor_truth(gcs, 10.0)
         await self._wait_ready(60.0)
         # A take-off that never leaves the ground is tried again (seen now and then, idle and
         # under load: accepted, TAKEOFF mode, no climb, or stuck at 0.3 m where PX4 denies a
@@ -275,40 +276,6 @@ class Px4Run(ExternalRun):
         finally:
             sticks.yaw = 0
         raise LinkError(f"PX4 did not turn north within {timeout_s:.0f} s (heading {yaw_deg:.0f})")
-
-    async def _anchor_truth(self, gcs: GroundStation, timeout_s: float) -> None:
-        """Ask for the simulation's truth; anchor it where PX4's estimate puts the vehicle.
-
-        The vehicle stands on the ground at the scenario's start; the world stands in PX4's
-        frame.
-
-        Raises:
-            LinkError: PX4 sent no HIL_STATE_QUATERNION within ``timeout_s``.
-        """
-        truth = self.truth
-        assert truth is not None
-        if truth.anchored:
-            return
-        deadline = time.monotonic() + timeout_s
-        while time.monotonic() < deadline:
-            await gcs.request_message_interval(TRUTH_MESSAGE, _TRUTH_RATE_HZ)
-            for _ in range(10):
-                await asyncio.sleep(0.1)
-                position = self.daemon.vehicle.position if self.daemon is not None else None
-                if position is not None and truth.anchor((position.north_m, position.east_m)):
-                    return
-        raise LinkError(
-            f"PX4 sent no {TRUTH_MESSAGE} (its simulation's truth) within {timeout_s:.0f} s"
-        )
-
-    def _measure(self, position: Any) -> Sample | None:
-        """Sample the true position when PX4 reports its estimate (the sampling's pace)."""
-        found = None if self.truth is None else self.truth.at(time.monotonic_ns())
-        if found is None:
-            self.samples_without_truth += 1
-            return None
-        pose = found.pose
-        return self._record(pose.north_m, pose.east_m, -pose.down_m, found.speed_m_s)
 
     async def _camera_timeline(self) -> None:
         """The scenario's camera actions, at their times from the start of the push."""
