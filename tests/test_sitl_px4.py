@@ -165,7 +165,8 @@ def _push_story(run: Px4Run, sent: list[tuple[int, Any]]) -> str:
     return (
         f"{'; '.join(story)}; home {run.home_up_m:.2f} m above PX4's origin (avoidd's now "
         f"{vehicle and vehicle.home_up_m}); reboots seen {vehicle and vehicle.reboots}; "
-        f"heading before lining up {run.heading_before_push_deg}; "
+        f"heading before lining up {run.heading_before_push_deg}; PX4's estimate "
+        f"{run.start_moved_m} m from the start before the push (the world moved there); "
         f"avoidd {summary.states}; PX4 said {summary.autopilot_said}"
     )
 
@@ -188,7 +189,8 @@ async def test_px4_collision_prevention_stops_a_pushed_vehicle_on_avoidd_data(
         f"{closest.clearance_m + radius_m:.2f} m, CP_DIST 2.0) at {closest.t_s:.1f} s; top speed "
         f"{max(s.speed_m_s for s in summary.samples):.1f} m/s; end N{summary.final_ne_m[0]:.2f}; "
         f"longest gap between avoidd's OBSTACLE_DISTANCE {_longest_gap_s(sent):.2f} s; "
-        f"heading before lining up {run.heading_before_push_deg:.1f} deg; end E"
+        f"heading before lining up {run.heading_before_push_deg:.1f} deg; estimate "
+        f"{run.start_moved_m:.2f} m from the start before it; end E"
         f"{summary.final_ne_m[1]:.2f}; test {time.monotonic() - t0:.0f} s"
     )
     print(_push_story(run, sent))  # shown when a later assertion fails

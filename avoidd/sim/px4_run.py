@@ -100,6 +100,8 @@ class Px4Run(ExternalRun):
         self.estimator_s = 0.0
         self.heading_before_push_deg: float | None = None
         """Push: the vehicle's heading before it was turned north (degrees)."""
+        self.start_moved_m: float | None = None
+        """Push: how far from the start PX4's estimate had the vehicle before the push."""
         self._plugged = [True]
         unsupported = [a.action for a in scenario.timeline if not a.action.startswith("camera_")]
         if unsupported:
@@ -165,14 +167,17 @@ class Px4Run(ExternalRun):
         daemon = self.daemon
         assert daemon is not None
         renderer = StereoRenderer(self.world, rig, Mount())
-        local = vehicle_pose(daemon.vehicle, self.offset_ne_m)
+        local = vehicle_pose(daemon.vehicle)
 
         def pose(t_ns: int) -> VehiclePose | None:
             found = local(t_ns)
-            home_up_m = daemon.vehicle.home_up_m
-            if found is None or home_up_m is None:
-                return found
-            return dataclasses.replace(found, down_m=found.down_m + home_up_m)
+            if found is None:
+                return None
+            # The offset as it stands now: a push moves the world to where the vehicle is.
+            north_m = found.north_m + self.offset_ne_m[0]
+            east_m = found.east_m + self.offset_ne_m[1]
+            down_m = found.down_m + (daemon.vehicle.home_up_m or 0.0)
+            return dataclasses.replace(found, north_m=north_m, east_m=east_m, down_m=down_m)
 
         camera = PoseRenderedSource(renderer, pose, self.scenario.fps, seed=self.world.seed)
         return UnpluggableSource(camera, self._plugged)
@@ -228,6 +233,7 @@ class Px4Run(ExternalRun):
                 raise LinkError("PX4 refused Position mode")
             await self._wait_mode("POSCTL", 10.0)
             await self._face_north(20.0)
+            await self._anchor_start()
             self._t0_ns = time.monotonic_ns()
             self.stick_x = 1000
             timeline = asyncio.create_task(self._camera_timeline(), name="timeline")
@@ -276,6 +282,34 @@ class Px4Run(ExternalRun):
         finally:
             sticks.yaw = 0
         raise LinkError(f"PX4 did not turn north within {timeout_s:.0f} s (heading {yaw_deg:.0f})")
+
+    async def _anchor_start(self) -> None:
+        """Put the scenario's start where PX4's estimate has the vehicle now, before a push.
+
+        The world is placed in PX4's own frame (its estimate: what it flies on and reports),
+        with its local origin at the scenario's start. On a loaded machine the estimate
+        wandered while the vehicle took off and hovered (the push began 5.9 m west of the
+        wall's centre and flew past its end): a push straight ahead must start in front of
+        the wall, as a pilot lines up before pushing. The camera renders the moved world from
+        the next frame on; one second of frames lets avoidd's readings catch up.
+        """
+        daemon = self.daemon
+        assert daemon is not None
+        position = daemon.vehicle.position
+        if position is None:
+            raise LinkError("no LOCAL_POSITION_NED from PX4 before the push")
+        start = self.scenario.start
+        moved_m = math.hypot(
+            position.north_m + self.offset_ne_m[0] - start.north_m,
+            position.east_m + self.offset_ne_m[1] - start.east_m,
+        )
+        self.offset_ne_m = (start.north_m - position.north_m, start.east_m - position.east_m)
+        self.start_moved_m = moved_m
+        logger.info(
+            "push: PX4's estimate has the vehicle %.2f m from the start; the world moves there",
+            moved_m,
+        )
+        await asyncio.sleep(1.0)
 
     async def _camera_timeline(self) -> None:
         """The scenario's camera actions, at their times from the start of the push."""
