@@ -9,7 +9,14 @@ import numpy as np
 import pytest
 
 from avoidd.config import AvoidanceConfig
-from avoidd.planner.core import Goal, Planner, Pose, effective_latency_s, stopping_speed_m_s
+from avoidd.planner.core import (
+    Goal,
+    Planner,
+    Pose,
+    brake_overspeed,
+    effective_latency_s,
+    stopping_speed_m_s,
+)
 from avoidd.planner.gating import Facts, Gate, gate
 from avoidd.planner.geometry import directions_rad, free_distance
 from avoidd.planner.memory import ObstacleMemory, bearing_bins
@@ -520,6 +527,49 @@ def test_inside_the_clearance_of_a_wall_flown_along_the_setpoint_leads_away_from
         2 * S, Pose(2 * S, 0.0, 0.0, -2.0, 0.0, 2.0, 0.0), Goal(30.0, 0.0, 2.0), True
     )
     assert mirrored.velocity_ned[1] == pytest.approx(away_m_s, abs=1e-6)
+
+
+def test_a_vehicle_outrunning_its_plan_is_asked_for_the_excess_back() -> None:
+    # Flying north at 1.5 m/s when the plan turns east along a wall ahead: the setpoint also
+    # asks to brake the 1.5 m/s north (less the 0.25 m/s slack) at once, against the way the
+    # vehicle came; it stays within the maximum speed.
+    north, east = brake_overspeed((0.0, 1.0), Pose(S, 0.0, 0.0, -2.0, 0.0, 1.5, 0.0), 2.0)
+    assert north == pytest.approx(-1.25)
+    assert east == pytest.approx(1.0)
+    north, east = brake_overspeed((0.0, 2.0), Pose(S, 0.0, 0.0, -2.0, 0.0, 1.5, 0.0), 2.0)
+    assert math.hypot(north, east) == pytest.approx(2.0)
+    assert north < -0.8 and east > 1.0
+    # The speed law slowing the way flown: 1.6 m/s measured, 1.1 planned: 0.25 m/s more brake.
+    slowing = brake_overspeed((1.1, 0.0), Pose(S, 0.0, 0.0, -2.0, 0.0, 1.6, 0.0), 2.0)
+    assert slowing == pytest.approx((0.85, 0.0))
+
+
+def test_a_vehicle_short_of_its_plan_gets_the_plan_unchanged() -> None:
+    # Accelerating, short of the setpoint against drag, within the slack, or hovering: as planned.
+    for velocity, plan in [
+        ((1.0, 0.0), (2.0, 0.0)),
+        ((1.6, 0.0), (2.0, 0.0)),
+        ((1.2, 0.0), (1.0, 0.2)),
+        ((0.0, 0.0), (0.0, 1.0)),
+    ]:
+        pose = Pose(S, 0.0, 0.0, -2.0, 0.0, *velocity)
+        assert brake_overspeed(plan, pose, 2.0) == plan
+
+
+def test_an_overshooting_vehicle_is_braked_in_the_setpoint_the_planner_sends() -> None:
+    # At 1.8 m/s north toward a wall 2 m ahead that closes the way on, the plan turns along
+    # it (east): the setpoint sent says south as well, as hard as the vehicle outruns the plan.
+    planner = _planner(unknown="free", memory_s=10.0, max_speed_m_s=2.0)
+    across = np.arange(-8.0, 30.0, 0.1)
+    planner.memory.north_east = np.stack([np.full_like(across, 2.0), across], axis=1)
+    planner.memory.t_ns = np.full(len(across), S, dtype=np.int64)
+    pose = Pose(S, 0.0, 0.0, -2.0, 0.0, 1.8, 0.0)
+    decision = planner.decide(S, pose, Goal(20.0, 0.0, 2.0), fresh=True)
+    assert decision.state == "moving"
+    north_m_s, east_m_s, _ = decision.velocity_ned
+    assert north_m_s < -0.5, decision
+    assert abs(east_m_s) > 0.5, decision
+    assert math.hypot(north_m_s, east_m_s) <= 2.0 + 1e-9
 
 
 def test_between_two_walls_nearer_than_the_clearance_nothing_pushes_either_way() -> None:

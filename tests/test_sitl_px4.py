@@ -342,7 +342,8 @@ async def test_px4_offboard_planner_flies_round_the_wall_and_yields_to_the_pilot
         f"{run.sticks.longest_gap_s if run.sticks else None} s; "
         f"test {time.monotonic() - t0:.0f} s"
     )
-    # The scenario's criteria: no collision, edge clearance >= 0.5 m, goal within 60 s.
+    # The scenario's criteria: no collision, goal within 60 s, and the built-in simulator's
+    # clearance: the edge 0.9 m from the wall in 99 % of the samples.
     assert summary.passed, (summary.failures, summary.states, summary.autopilot_said)
     assert not summary.collided and summary.min_clearance_m >= 0.5
     assert run.offboard_s is not None

@@ -215,7 +215,9 @@ class ExternalRun:
         self.avoid_margin_m = avoid_margin_m
         self.world, self.goal = scenario_world(scenario)
         self.offset_ne_m = (scenario.start.north_m, scenario.start.east_m)
-        """The world position of the autopilot's local origin (the scenario's start)."""
+        """The world position of the autopilot's local origin: the scenario's start, until a
+        PX4 push moves the world to where PX4's estimate has the vehicle after lining up
+        (:meth:`~avoidd.sim.px4_run.Px4Run._anchor_start`)."""
         self.rig: RectifiedRig = RIGS[scenario.resolution]
         self.radius_m = scenario.avoidance.vehicle_radius_m
         self.home_up_m = 0.0

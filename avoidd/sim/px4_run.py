@@ -173,9 +173,11 @@ class Px4Run(ExternalRun):
             found = local(t_ns)
             if found is None:
                 return None
-            # The offset as it stands now: a push moves the world to where the vehicle is.
-            north_m = found.north_m + self.offset_ne_m[0]
-            east_m = found.east_m + self.offset_ne_m[1]
+            # The offset as it stands now (read once: a push moves the world to where the
+            # vehicle is, and one frame must not mix the old and the new).
+            offset_north_m, offset_east_m = self.offset_ne_m
+            north_m = found.north_m + offset_north_m
+            east_m = found.east_m + offset_east_m
             down_m = found.down_m + (daemon.vehicle.home_up_m or 0.0)
             return dataclasses.replace(found, north_m=north_m, east_m=east_m, down_m=down_m)
 
