@@ -529,31 +529,57 @@ def test_inside_the_clearance_of_a_wall_flown_along_the_setpoint_leads_away_from
     assert mirrored.velocity_ned[1] == pytest.approx(away_m_s, abs=1e-6)
 
 
+def _moving(north_m_s: float, east_m_s: float) -> Pose:
+    return Pose(S, 0.0, 0.0, -2.0, 0.0, north_m_s, east_m_s)
+
+
 def test_a_vehicle_outrunning_its_plan_is_asked_for_the_excess_back() -> None:
     # Flying north at 1.5 m/s when the plan turns east along a wall ahead: the setpoint also
     # asks to brake the 1.5 m/s north (less the 0.25 m/s slack) at once, against the way the
-    # vehicle came; it stays within the maximum speed.
-    north, east = brake_overspeed((0.0, 1.0), Pose(S, 0.0, 0.0, -2.0, 0.0, 1.5, 0.0), 2.0)
+    # vehicle came; the plan is kept whole within the maximum speed, the braking shares it.
+    north, east = brake_overspeed((0.0, 1.0), (0.0, 0.0), _moving(1.5, 0.0), 2.0)
     assert north == pytest.approx(-1.25)
     assert east == pytest.approx(1.0)
-    north, east = brake_overspeed((0.0, 2.0), Pose(S, 0.0, 0.0, -2.0, 0.0, 1.5, 0.0), 2.0)
+    north, east = brake_overspeed((0.0, 2.0), (0.0, 0.0), _moving(1.5, 0.0), 2.0)
+    assert (north, east) == pytest.approx((0.0, 2.0))
+    north, east = brake_overspeed((0.0, 1.8), (0.0, 0.0), _moving(1.5, 0.0), 2.0)
     assert math.hypot(north, east) == pytest.approx(2.0)
-    assert north < -0.8 and east > 1.0
+    assert north == pytest.approx(-math.sqrt(2.0**2 - 1.8**2)) and east == pytest.approx(1.8)
     # The speed law slowing the way flown: 1.6 m/s measured, 1.1 planned: 0.25 m/s more brake.
-    slowing = brake_overspeed((1.1, 0.0), Pose(S, 0.0, 0.0, -2.0, 0.0, 1.6, 0.0), 2.0)
+    slowing = brake_overspeed((1.1, 0.0), (0.0, 0.0), _moving(1.6, 0.0), 2.0)
     assert slowing == pytest.approx((0.85, 0.0))
 
 
 def test_a_vehicle_short_of_its_plan_gets_the_plan_unchanged() -> None:
-    # Accelerating, short of the setpoint against drag, within the slack, or hovering: as planned.
+    # Accelerating, short of the setpoint against drag, within the slack, hovering, or with a
+    # little noise against the plan: as planned.
     for velocity, plan in [
         ((1.0, 0.0), (2.0, 0.0)),
         ((1.6, 0.0), (2.0, 0.0)),
         ((1.2, 0.0), (1.0, 0.2)),
         ((0.0, 0.0), (0.0, 1.0)),
+        ((-0.01, 0.0), (1.0, 0.0)),
+        ((-0.2, 0.1), (0.4, 0.0)),
     ]:
-        pose = Pose(S, 0.0, 0.0, -2.0, 0.0, *velocity)
-        assert brake_overspeed(plan, pose, 2.0) == plan
+        assert brake_overspeed(plan, (0.0, 0.0), _moving(*velocity), 2.0) == plan
+
+
+def test_braking_never_speeds_the_plan_up_nor_undoes_a_back_away() -> None:
+    # Going back the way it came at 1.5 m/s while the plan says 0.4 m/s on (the speed law's
+    # stopping speed toward a wall): nothing is added toward the wall.
+    north, east = brake_overspeed((0.4, 0.0), (0.0, 0.0), _moving(-1.5, 0.0), 2.0)
+    assert north <= 0.4 + 1e-9
+    # Along a wall to the north with a back-away south in the plan, the vehicle already leaving
+    # south faster than that: its speed away is not braked (nothing toward the wall).
+    plan, away = (-0.3, 1.0), (-0.3, 0.0)
+    north, east = brake_overspeed(plan, away, _moving(-1.5, 0.3), 2.0)
+    assert north <= plan[0] + 1e-9
+    # Backing away west from a wall to the east while drifting west-southwest: the speed
+    # away is kept whole.
+    plan, away = (0.8, -0.3), (0.0, -0.3)
+    north, east = brake_overspeed(plan, away, _moving(-0.2, -0.6), 2.0)
+    assert east <= plan[1] + 1e-9
+    assert north <= plan[0] + 1e-9
 
 
 def test_an_overshooting_vehicle_is_braked_in_the_setpoint_the_planner_sends() -> None:

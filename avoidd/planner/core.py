@@ -537,12 +537,11 @@ class Planner:
         off_rad = abs(turned_rad - self._view_offset_rad(turned_rad))
         speed *= 0.5 + 0.5 * max(0.0, math.cos(off_rad))
         yaw_rate = self._yaw_rate(float(wrap_rad(look - pose.yaw_rad)))
+        away = self.back_away_m_s(pose)
         north, east = _with_back_away(
-            (speed * math.cos(chosen), speed * math.sin(chosen)),
-            self.back_away_m_s(pose),
-            config.max_speed_m_s,
+            (speed * math.cos(chosen), speed * math.sin(chosen)), away, config.max_speed_m_s
         )
-        north, east = brake_overspeed((north, east), pose, config.max_speed_m_s)
+        north, east = brake_overspeed((north, east), away, pose, config.max_speed_m_s)
         velocity = (north, east, vertical)
         return Decision(
             velocity,
@@ -709,7 +708,10 @@ class Planner:
 
 
 def brake_overspeed(
-    planned_m_s: tuple[float, float], pose: Pose, max_speed_m_s: float
+    planned_m_s: tuple[float, float],
+    away_m_s: tuple[float, float],
+    pose: Pose,
+    max_speed_m_s: float,
 ) -> tuple[float, float]:
     """The planned velocity with extra braking where the vehicle outruns it.
 
@@ -720,15 +722,21 @@ def brake_overspeed(
     keeps the vehicle going: measured in SITL it flew on at 1.5 m/s for half a second after
     the setpoint had fallen to 1.2, and 0.6 m farther toward the wall than the plan after a
     turn. So where the vehicle moves faster along its own direction of travel than the plan
-    wants that way, by more than a vehicle following its setpoint lags it anyway (the slack:
-    the built-in simulator's vehicle stays within it and comes up to its margin as before),
-    the setpoint asks for the excess back, against that direction (toward
-    where the vehicle has just been): the autopilot brakes as hard as the plan needs, and the
-    correction fades as the vehicle slows to the plan. A vehicle slower than its setpoint
-    (accelerating, or short of it against drag) gets the plan unchanged.
+    wants that way (none: a plan the other way counts as zero), by more than a vehicle
+    following its setpoint lags it anyway (the slack: the built-in simulator's vehicle mostly
+    stays within it), the setpoint also asks for the excess back, against that direction; the
+    correction fades as the vehicle slows to the plan.
+
+    The correction only ever brakes: a part of it along the planned velocity (which would fly
+    faster than the speed law allows that way) or against the speed away from what the vehicle
+    is too near (which would undo the back-away) is not sent; when both cannot be kept out,
+    none of it is. It shares the maximum speed with the plan, which is kept whole. The
+    vehicle's velocity here is the autopilot's newest report (up to the position's freshness
+    limit old): braking on an old one costs pace, never margin.
 
     Args:
-        planned_m_s: The planned velocity (north, east).
+        planned_m_s: The planned velocity (north, east), back-away included.
+        away_m_s: The back-away part of it (zeros: none).
         pose: The vehicle's state (its measured velocity).
         max_speed_m_s: The setpoint's speed stays within this.
 
@@ -738,17 +746,33 @@ def brake_overspeed(
     moving_m_s = math.hypot(pose.north_m_s, pose.east_m_s)
     if moving_m_s == 0.0:
         return planned_m_s
-    unit_n, unit_e = pose.north_m_s / moving_m_s, pose.east_m_s / moving_m_s
-    wanted_m_s = planned_m_s[0] * unit_n + planned_m_s[1] * unit_e
+    unit = np.array([pose.north_m_s, pose.east_m_s]) / moving_m_s
+    planned = np.array(planned_m_s, dtype=np.float64)
+    wanted_m_s = max(0.0, float(planned @ unit))
     excess_m_s = moving_m_s - wanted_m_s - _OVERSPEED_SLACK_M_S
     if excess_m_s <= 0.0:
         return planned_m_s
-    north = planned_m_s[0] - _OVERSPEED_GAIN * excess_m_s * unit_n
-    east = planned_m_s[1] - _OVERSPEED_GAIN * excess_m_s * unit_e
-    size = math.hypot(north, east)
-    if size > max_speed_m_s:
-        north, east = north * max_speed_m_s / size, east * max_speed_m_s / size
+    correction = -_OVERSPEED_GAIN * excess_m_s * unit
+    plan_unit = _unit(planned_m_s)
+    away_unit = _unit(away_m_s)
+    if plan_unit is not None:
+        correction -= max(0.0, float(correction @ plan_unit)) * plan_unit
+    if away_unit is not None:
+        correction -= min(0.0, float(correction @ away_unit)) * away_unit
+    if (plan_unit is not None and float(correction @ plan_unit) > 1e-9) or (
+        away_unit is not None and float(correction @ away_unit) < -1e-9
+    ):
+        return planned_m_s
+    north, east = _with_back_away(
+        (float(correction[0]), float(correction[1])), planned_m_s, max_speed_m_s
+    )
     return (north, east)
+
+
+def _unit(vector: tuple[float, float]) -> np.ndarray | None:
+    """The direction of a horizontal vector (None for a zero one)."""
+    size = math.hypot(*vector)
+    return None if size == 0.0 else np.array(vector, dtype=np.float64) / size
 
 
 def _with_back_away(
