@@ -11,7 +11,8 @@ estimator, arms and takes off (``MAV_CMD_NAV_TAKEOFF`` to ``MIS_TAKEOFF_ALT``), 
   to Position mode (the pilot takes over) and counts the setpoints avoidd still sends; or
 - ``push``: with avoidd's planner off, switches to Position mode and pushes full forward stick
   (``x = 1000``), so that only PX4's collision prevention (``CP_DIST``, fed by avoidd's
-  OBSTACLE_DISTANCE) stops the vehicle short of the wall.
+  OBSTACLE_DISTANCE) stops the vehicle short of the wall (its guidance off: ``CP_GUIDE_ANG``
+  0, so the stick's direction is kept).
 
 PX4's SIH vehicle starts at its local origin facing north: scenarios must start at heading 0.
 """
@@ -89,6 +90,13 @@ class Px4Run(ExternalRun):
         if cp_dist_m is not None:
             self.params["CP_DIST"] = cp_dist_m
         self.params.setdefault("MIS_TAKEOFF_ALT", self.goal[2])
+        if mode == "push":
+            # The push measures the stop: PX4's guidance (CP_GUIDE_ANG, 30 degrees by default)
+            # steers the stick's direction up to that far toward freer bins, and a push that
+            # began 0.6 m east of the wall's middle saw past its end 28 degrees right, slid
+            # along it and flew round (a loaded CI run). Straight at the wall, as a pilot
+            # holding the stick expects to be stopped.
+            self.params.setdefault("CP_GUIDE_ANG", 0.0)
         self.release_s = release_s
         self._stick_x = 0
         self.sticks: StickStream | None = None
