@@ -5,25 +5,37 @@ lateness can be the kernel giving the CPU to another process: the loop thread wa
 but waited in the run queue. Linux counts that wait per thread (``run_delay``, the second field
 of ``/proc/<pid>/task/<tid>/schedstat``). A thread of the process that the kernel preempts
 while it holds the GIL makes the loop thread wait too, off the run queue; its own run-queue
-wait bounds that. Lag minus those waits is the part the process itself caused (a blocking call
-in the loop, heavy work in a callback). Where schedstat is missing, the own lag is the whole
-lag.
+wait bounds that. The interpreter's garbage collector stops every thread while it runs, whatever
+the loop was doing; its pauses are timed (``gc.callbacks``) and counted apart, since their
+length follows the size of the whole process's heap (in a test, the whole suite's). Lag minus
+those waits and pauses is the part the process itself caused (a blocking call in the loop,
+heavy work in a callback). Where schedstat is missing, the own lag is the lag minus the pauses.
 """
 
 from __future__ import annotations
 
 import asyncio
 import contextlib
+import gc
 import os
 import threading
 import time
+from dataclasses import dataclass
+from typing import Any
+
+
+def _read_schedstat_ns(fd: int) -> tuple[int, int] | None:
+    """A thread's cumulative time on a CPU and time waiting for one (ns)."""
+    try:
+        fields = os.pread(fd, 128, 0).split()
+        return int(fields[0]), int(fields[1])
+    except (OSError, IndexError, ValueError):
+        return None
 
 
 def _read_run_delay_ns(fd: int) -> int | None:
-    try:
-        return int(os.pread(fd, 128, 0).split()[1])
-    except (OSError, IndexError, ValueError):
-        return None
+    stat = _read_schedstat_ns(fd)
+    return None if stat is None else stat[1]
 
 
 class _RunDelays:
@@ -50,6 +62,12 @@ class _RunDelays:
         for tid in tids - set(self._fds):
             with contextlib.suppress(OSError):
                 self._fds[tid] = os.open(f"/proc/self/task/{tid}/schedstat", os.O_RDONLY)
+
+    def own_cpu_ns(self) -> int | None:
+        """The calling thread's cumulative time on a CPU, or None if unknown."""
+        fd = self._fds.get(self._own_tid)
+        stat = _read_schedstat_ns(fd) if fd is not None else None
+        return None if stat is None else stat[0]
 
     def read_ns(self) -> tuple[int, dict[int, int]] | None:
         """The calling thread's wait and every other thread's, or None if unknown."""
@@ -86,6 +104,62 @@ def _load_ms(
     return (after[0] - before[0] + max(others, default=0)) / 1e6
 
 
+class _GcPauses:
+    """Total time the garbage collector has run since ``start`` (ns), from ``gc.callbacks``."""
+
+    def __init__(self) -> None:
+        self.total_ns = 0
+        self._began_ns = 0
+
+    def _callback(self, phase: str, info: dict[str, Any]) -> None:
+        now_ns = time.perf_counter_ns()
+        if phase == "start":
+            self._began_ns = now_ns
+        elif self._began_ns:
+            self.total_ns += now_ns - self._began_ns
+            self._began_ns = 0
+
+    def start(self) -> None:
+        """Begin timing the collector's runs."""
+        gc.callbacks.append(self._callback)
+
+    def stop(self) -> None:
+        """Stop timing."""
+        with contextlib.suppress(ValueError):
+            gc.callbacks.remove(self._callback)
+
+
+@dataclass(frozen=True)
+class LagSample:
+    """One wake-up's lateness and what explains it.
+
+    Attributes:
+        lag_ms: How late the wake-up came (wall clock).
+        load_ms: Of it, time the loop thread (and the longest-waiting other thread) waited for
+            a CPU; None without schedstat.
+        gc_ms: Time the garbage collector ran meanwhile.
+        own_ms: What is left: the loop's own doing.
+        loop_cpu_ms: Time the loop thread spent on a CPU meanwhile (near ``own_ms``: the loop
+            was busy computing; near 0: it was blocked); None without schedstat.
+    """
+
+    lag_ms: float
+    load_ms: float | None
+    gc_ms: float
+    own_ms: float
+    loop_cpu_ms: float | None
+
+    def describe(self) -> str:
+        """The breakdown in one line."""
+        load = "unknown" if self.load_ms is None else f"{self.load_ms:.1f}"
+        cpu = "unknown" if self.loop_cpu_ms is None else f"{self.loop_cpu_ms:.1f}"
+        return (
+            f"{self.lag_ms:.1f} ms late: {load} ms waiting for a CPU, {self.gc_ms:.1f} ms of "
+            f"garbage collection, {self.own_ms:.1f} ms the loop's own "
+            f"(loop thread on a CPU {cpu} ms)"
+        )
+
+
 class LagMonitor:
     """Measures how late the event loop wakes a task that sleeps ``period_s`` at a time.
 
@@ -93,8 +167,8 @@ class LagMonitor:
         max_lag_ms: Largest lateness seen (wall clock).
         max_own_lag_ms: Largest lateness left after removing the time spent waiting for a
             CPU (the machine's load) by the loop thread and by the longest-waiting other thread
-            of the process (which may have held the GIL); equals ``max_lag_ms`` without
-            schedstat.
+            of the process (which may have held the GIL) and the garbage collector's pauses.
+        worst: The breakdown of the wake-up with the largest own lateness.
         samples: Wake-ups measured.
         accounted: Whether the load could be accounted for (schedstat readable).
     """
@@ -105,29 +179,43 @@ class LagMonitor:
         self.max_own_lag_ms = 0.0
         self.samples = 0
         self.accounted = False
+        self.worst: LagSample | None = None
 
     def reset(self) -> None:
         """Forget the lag seen so far."""
         self.max_lag_ms = 0.0
         self.max_own_lag_ms = 0.0
         self.samples = 0
+        self.worst = None
 
     async def run(self) -> None:
         """Sleep and measure until cancelled (must run in the loop being measured)."""
         delays = _RunDelays()
+        pauses = _GcPauses()
+        pauses.start()
         try:
             while True:
                 waited0 = delays.read_ns()
+                cpu0_ns = delays.own_cpu_ns()
+                gc0_ns = pauses.total_ns
                 started = time.perf_counter()
                 await asyncio.sleep(self.period_s)
                 lag_ms = (time.perf_counter() - started - self.period_s) * 1000.0
                 load_ms = _load_ms(waited0, delays.read_ns())
-                own_ms = lag_ms
+                cpu1_ns = delays.own_cpu_ns()
+                gc_ms = (pauses.total_ns - gc0_ns) / 1e6
+                own_ms = lag_ms - gc_ms
                 if load_ms is not None:
-                    own_ms = lag_ms - load_ms
+                    own_ms -= load_ms
                     self.accounted = True
                 self.max_lag_ms = max(self.max_lag_ms, lag_ms)
-                self.max_own_lag_ms = max(self.max_own_lag_ms, own_ms)
+                if self.worst is None or own_ms > self.max_own_lag_ms:
+                    cpu_ms = None
+                    if cpu0_ns is not None and cpu1_ns is not None:
+                        cpu_ms = (cpu1_ns - cpu0_ns) / 1e6
+                    self.worst = LagSample(lag_ms, load_ms, gc_ms, own_ms, cpu_ms)
+                    self.max_own_lag_ms = max(self.max_own_lag_ms, own_ms)
                 self.samples += 1
         finally:
+            pauses.stop()
             delays.close()

@@ -310,12 +310,24 @@ class _Serial:
             logger.debug("MAVLink %s: line settings not applied", spec)
         return fd
 
+    async def _open_off_loop(self) -> int:
+        """Open the port in a worker thread.
+
+        Opening (and setting up) a serial device may wait on its driver; the loop must not.
+        """
+        future = asyncio.get_running_loop().run_in_executor(None, self._open_device)
+        try:
+            return await asyncio.shield(future)
+        except asyncio.CancelledError:
+            future.add_done_callback(_close_opened)  # closing meanwhile: do not leak the port
+            raise
+
     async def _run(self) -> None:
         backoff_s = 0.1
         failures = 0
         while True:
             try:
-                fd = self._open_device()
+                fd = await self._open_off_loop()
             except OSError as exc:
                 hint = "is the user in group 'dialout'?" if exc.errno == 13 else "is it plugged in?"
                 log = logger.error if failures == 0 else logger.debug
@@ -378,8 +390,12 @@ class _Serial:
         loop = asyncio.get_running_loop()
         loop.remove_reader(self._fd)
         loop.remove_writer(self._fd)
-        with contextlib.suppress(OSError):
-            os.close(self._fd)
+        # Closing a tty may wait for its output to drain or for the kernel's tty work (a busy
+        # machine's worker threads): off the loop.
+        try:
+            loop.run_in_executor(None, _close_quietly, self._fd)
+        except RuntimeError:  # the loop is shutting down its threads: close here
+            _close_quietly(self._fd)
         self._fd = None
         self._pending.clear()
         self._lost.set()
@@ -402,8 +418,17 @@ class _Serial:
             loop = asyncio.get_running_loop()
             loop.remove_reader(fd)
             loop.remove_writer(fd)
-            with contextlib.suppress(OSError):
-                os.close(fd)
+            await loop.run_in_executor(None, _close_quietly, fd)
+
+
+def _close_quietly(fd: int) -> None:
+    with contextlib.suppress(OSError):
+        os.close(fd)
+
+
+def _close_opened(future: asyncio.Future[int]) -> None:
+    if not future.cancelled() and future.exception() is None:
+        _close_quietly(future.result())
 
 
 class _TcpServer:
