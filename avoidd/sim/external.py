@@ -78,6 +78,10 @@ class Sample:
         altitude_m: Height above home.
         speed_m_s: Horizontal speed.
         clearance_m: Distance from the vehicle's edge to the nearest obstacle.
+        velocity_ne_m_s: The vehicle's horizontal velocity (north, east).
+        state: avoidd's planner state then (None without a planner decision).
+        setpoint_ne_m_s: The planner's horizontal velocity setpoint then.
+        free_m: The planner's free distance along its chosen direction then.
     """
 
     t_s: float
@@ -86,6 +90,44 @@ class Sample:
     altitude_m: float
     speed_m_s: float
     clearance_m: float
+    velocity_ne_m_s: tuple[float, float] = (0.0, 0.0)
+    state: str | None = None
+    setpoint_ne_m_s: tuple[float, float] | None = None
+    free_m: float | None = None
+
+    def describe(self) -> str:
+        """The sample in one line (for a failure's message)."""
+        where = f"{self.t_s:5.1f} s N{self.north_m:6.2f} E{self.east_m:6.2f}"
+        moving = "v {:+.2f} {:+.2f}".format(*self.velocity_ne_m_s)
+        setpoint = (
+            ""
+            if self.setpoint_ne_m_s is None
+            else " set {:+.2f} {:+.2f}".format(*self.setpoint_ne_m_s)
+        )
+        free = "" if self.free_m is None else f" free {self.free_m:.2f}"
+        return f"{where} edge {self.clearance_m:5.2f} {moving}{setpoint} {self.state}{free}"
+
+
+def window_around_minimum(samples: list[Sample], seconds: float) -> list[Sample]:
+    """The samples within ``seconds`` of the one with the least clearance, at most 5 a second.
+
+    Args:
+        samples: A flight's samples, in time order.
+        seconds: How far before and after the minimum to keep.
+
+    Returns:
+        The thinned window (empty for no samples).
+    """
+    if not samples:
+        return []
+    nearest = min(samples, key=lambda s: s.clearance_m)
+    kept: list[Sample] = []
+    for sample in samples:
+        if abs(sample.t_s - nearest.t_s) <= seconds and (
+            not kept or sample.t_s - kept[-1].t_s >= 0.2 - 1e-6 or sample is nearest
+        ):
+            kept.append(sample)
+    return kept
 
 
 @dataclass
@@ -393,6 +435,8 @@ class ExternalRun:
         east_m = float(position.y) + self.offset_ne_m[1]
         altitude_m = -float(position.z) - self.home_up_m
         edge_m = self.world.clearance_m(north_m, east_m, altitude_m) - self.radius_m
+        loop = self.daemon.avoidance if self.daemon is not None else None
+        decision = loop.last_decision if loop is not None else None
         sample = Sample(
             (time.monotonic_ns() - self._t0_ns) / 1e9,
             north_m,
@@ -400,6 +444,10 @@ class ExternalRun:
             altitude_m,
             math.hypot(float(position.vx), float(position.vy)),
             edge_m,
+            (float(position.vx), float(position.vy)),
+            None if decision is None else decision.state,
+            None if decision is None else decision.velocity_ned[:2],
+            None if decision is None else decision.free_m,
         )
         summary = self.summary
         summary.samples.append(sample)
