@@ -2,9 +2,13 @@
 
 from __future__ import annotations
 
+import asyncio
 import itertools
 
-from avoidd.sim.external import Sample, window_around_minimum
+import pytest
+
+from avoidd.errors import LinkError
+from avoidd.sim.external import Sample, fly_while_running, window_around_minimum
 
 
 def _flight() -> list[Sample]:
@@ -36,3 +40,39 @@ def test_a_sample_describes_where_how_fast_and_what_the_planner_wanted() -> None
     assert "v +1.00 +0.00" in line and "set +1.20 +0.00" in line and "moving" in line
     bare = Sample(1.0, 0.0, 0.0, 2.5, 0.0, 3.0).describe()
     assert "set" not in bare and "None" in bare
+
+
+async def _daemon(stop_after_s: float, code: int = 0) -> int:
+    await asyncio.sleep(stop_after_s)
+    return code
+
+
+async def test_a_flight_ends_at_once_when_avoidd_stops_and_says_so() -> None:
+    ended: list[str] = []
+
+    async def flight() -> None:
+        try:
+            await asyncio.sleep(30.0)  # waiting for data that would never come
+        except asyncio.CancelledError:
+            ended.append("cancelled")
+            raise
+
+    daemon = asyncio.create_task(_daemon(0.05, code=0))
+    with pytest.raises(LinkError, match="avoidd stopped during the run \\(exit code 0\\)"):
+        await asyncio.wait_for(fly_while_running(flight(), daemon), 5.0)
+    assert ended == ["cancelled"]
+
+
+async def test_a_flight_that_ends_first_returns_or_raises_its_own_failure() -> None:
+    daemon = asyncio.create_task(_daemon(30.0))
+    try:
+        await fly_while_running(asyncio.sleep(0.01), daemon)
+        assert not daemon.done()  # avoidd is left running: the run stops it
+
+        async def failing() -> None:
+            raise LinkError("SITL refused GUIDED")
+
+        with pytest.raises(LinkError, match="refused GUIDED"):
+            await fly_while_running(failing(), daemon)
+    finally:
+        daemon.cancel()

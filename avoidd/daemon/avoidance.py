@@ -40,6 +40,7 @@ from avoidd.mavlink.modes import ARDUPILOT, PX4
 from avoidd.mavlink.vehicle import Vehicle
 from avoidd.planner.core import Decision, Goal, Planner, Pose
 from avoidd.planner.gating import Facts, Gate, gate
+from avoidd.planner.track import track_velocity_ne
 
 logger = logging.getLogger(__name__)
 
@@ -163,6 +164,7 @@ class AvoidanceLoop:
             attitude.yaw_rad,
             position.vn_m_s,
             position.ve_m_s,
+            track_velocity_ne(self.vehicle.positions),
         )
 
     def step(self, now_ns: int) -> Message | None:

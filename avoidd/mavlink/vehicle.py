@@ -11,7 +11,7 @@ import asyncio
 import logging
 import math
 import time
-from collections import Counter
+from collections import Counter, deque
 from collections.abc import Callable
 from dataclasses import dataclass
 from typing import Protocol
@@ -23,6 +23,7 @@ from avoidd.mavlink.clock import ClockSync
 from avoidd.mavlink.geo import GlobalPoint, valid_lat_lon
 from avoidd.mavlink.link import MavLink
 from avoidd.mavlink.modes import FlightMode, decode_mode
+from avoidd.planner.track import TrackPoint
 
 logger = logging.getLogger(__name__)
 
@@ -39,6 +40,8 @@ as long each time, up to 2**6 times it (64 s for most streams)."""
 _NOT_AUTOPILOTS = {mav.MAV_TYPE_GCS, mav.MAV_TYPE_ONBOARD_CONTROLLER}
 _ORIGIN_RETRY_NS = 2_000_000_000
 _HOME_AFTER_ARMING_NS = 1_000_000_000
+_POSITIONS_KEPT = 64
+"""Local positions kept for the track velocity (over a second at PX4's 50 Hz)."""
 """Home is asked again this long after arming (both autopilots set it when they arm)."""
 _GPS_GLOBAL_ORIGIN = 49
 _HOME_POSITION = 242
@@ -142,6 +145,8 @@ class Vehicle:
         self.clock = ClockSync()
         self.attitude = AttitudeHistory()
         self.position: LocalPosition | None = None
+        self.positions: deque[TrackPoint] = deque(maxlen=_POSITIONS_KEPT)
+        """The newest local positions and velocities, for the track velocity."""
         self.position_received_ns = 0
         """When the newest LOCAL_POSITION_NED arrived (local monotonic clock)."""
         self.rangefinder: Rangefinder | None = None
@@ -349,7 +354,11 @@ class Vehicle:
         t_ns = self.clock.to_local_ns(message.time_boot_ms)
         assert t_ns is not None
         m = message
+        if self.positions and t_ns < self.positions[-1][0] - 1_000_000_000:
+            self.positions.clear()  # the autopilot's clock went back (a reboot): start over
         self.position = LocalPosition(t_ns, m.x, m.y, m.z, m.vx, m.vy, m.vz)
+        if not self.positions or t_ns > self.positions[-1][0]:  # a repeat or late one: skipped
+            self.positions.append((t_ns, float(m.x), float(m.y), float(m.vx), float(m.vy)))
         self.position_received_ns = received_ns
 
     def _on_distance_sensor(self, message: mav.Message, received_ns: int) -> None:
@@ -482,6 +491,7 @@ class Vehicle:
         """Forget what the autopilot said and what it was asked for."""
         self.attitude.clear()
         self.position = None
+        self.positions.clear()
         self.rangefinder = None
         self.origin = None
         self.home_up_m = None

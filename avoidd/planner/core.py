@@ -93,6 +93,9 @@ _OVERSPEED_GAIN = 1.0
 _OVERSPEED_SLACK_M_S = 0.25
 """Faster than the plan by at most this is ordinary lag (a vehicle that follows its setpoint within
 the latency the speed law allows for lags it so while braking): no extra braking."""
+_DRIFT_BAND_M = 1.0
+"""Drift toward what is within the clearance plus this is checked (see :meth:`Planner.stop_drift`):
+about a second of the drift seen in SITL before it would reach the clearance."""
 _LOOK_ASIDE_RAD = math.radians(90.0)
 """When the way chosen is this far from the best way were unseen ground free (the vehicle is
 about to turn away from it), the cameras look at the first unseen part of that best way."""
@@ -108,8 +111,10 @@ class Pose:
         east_m: Position east.
         down_m: Position down (negative above the origin).
         yaw_rad: Heading, radians from north, clockwise.
-        north_m_s: Velocity north.
+        north_m_s: Velocity north (the autopilot's estimate).
         east_m_s: Velocity east.
+        track_ne_m_s: Velocity (north, east) fitted to the recent positions (see
+            :mod:`avoidd.planner.track`); None when too few are known.
     """
 
     t_ns: int
@@ -119,6 +124,7 @@ class Pose:
     yaw_rad: float
     north_m_s: float = 0.0
     east_m_s: float = 0.0
+    track_ne_m_s: tuple[float, float] | None = None
 
 
 @dataclass(frozen=True)
@@ -361,6 +367,53 @@ class Planner:
         speed = min(_BACK_AWAY_MAX_M_S, _BACK_AWAY_GAIN * inside_m)
         return (-speed * math.cos(toward), -speed * math.sin(toward))
 
+    def stop_drift(
+        self, planned_m_s: tuple[float, float], braked_m_s: tuple[float, float], pose: Pose
+    ) -> tuple[float, float]:
+        """The planned velocity, with the drift toward a near obstacle asked back.
+
+        The autopilot flies its own velocity estimate, which need not agree with how its
+        position moves (:mod:`avoidd.planner.track`): a vehicle told to fly along a wall can
+        close on it at half a metre per second while the velocity it reports shows none. So
+        where remembered obstacles lie within the clearance plus :data:`_DRIFT_BAND_M`, all
+        on one side, and the positions approach that side faster than the plan does (by more
+        than the slack a vehicle following its setpoint lags it by), the excess is asked back,
+        away from that side, less what :func:`brake_overspeed` already asks that way. The
+        correction only ever points away from what is near; the plan gives way to it within
+        the maximum speed.
+
+        Args:
+            planned_m_s: The velocity (north, east) planned, back-away included.
+            braked_m_s: The same after :func:`brake_overspeed`.
+            pose: The vehicle's state (its track velocity).
+
+        Returns:
+            The velocity to command (north, east).
+        """
+        if pose.track_ne_m_s is None:
+            return braked_m_s
+        offsets = self.memory.offsets((pose.north_m, pose.east_m))
+        if not offsets.size:
+            return braked_m_s
+        ranges_m = np.hypot(offsets[:, 0], offsets[:, 1])
+        toward = self._side_within(offsets, ranges_m, self.clearance_m + _DRIFT_BAND_M)
+        if toward is None:
+            return braked_m_s
+        side = (math.cos(toward), math.sin(toward))
+
+        def closing(velocity: tuple[float, float]) -> float:
+            return velocity[0] * side[0] + velocity[1] * side[1]
+
+        excess_m_s = (
+            closing(pose.track_ne_m_s) - max(0.0, closing(planned_m_s)) - _OVERSPEED_SLACK_M_S
+        )
+        asked_m_s = max(0.0, closing(planned_m_s) - closing(braked_m_s))
+        extra_m_s = _OVERSPEED_GAIN * excess_m_s - asked_m_s
+        if extra_m_s <= 0.0:
+            return braked_m_s
+        back = (-extra_m_s * side[0], -extra_m_s * side[1])
+        return _with_back_away(braked_m_s, back, self.config.max_speed_m_s)
+
     def free_m(
         self, pose: Pose, headings_rad: np.ndarray, buffer_m: float | np.ndarray = 0.0
     ) -> np.ndarray:
@@ -541,7 +594,8 @@ class Planner:
         north, east = _with_back_away(
             (speed * math.cos(chosen), speed * math.sin(chosen)), away, config.max_speed_m_s
         )
-        north, east = brake_overspeed((north, east), away, pose, config.max_speed_m_s)
+        braked = brake_overspeed((north, east), away, pose, config.max_speed_m_s)
+        north, east = self.stop_drift((north, east), braked, pose)
         velocity = (north, east, vertical)
         return Decision(
             velocity,

@@ -24,6 +24,7 @@ import asyncio
 import logging
 import math
 import time
+from collections.abc import Coroutine
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any, Literal
@@ -65,6 +66,40 @@ The push holds the heading the scenario starts with: with velocity alone ArduPil
 nose towards the direction of travel, so when its avoidance backs the vehicle away from the wall
 the single forward camera turns away from it, the wall falls into bins nothing measures, and
 the next push meets it unseen (observed)."""
+
+
+async def fly_while_running(flight: Coroutine[Any, Any, None], daemon: asyncio.Task[int]) -> None:
+    """Fly, unless avoidd stops first: then the flight ends at once.
+
+    avoidd stops on SIGINT or SIGTERM (an operator's Ctrl-C reaches it first) or when it
+    fails; a run flying on without it would only wait for data that never comes.
+
+    Args:
+        flight: The flight to fly.
+        daemon: avoidd's task.
+
+    Raises:
+        LinkError: avoidd stopped before the flight ended.
+    """
+    flying = asyncio.ensure_future(flight)
+    try:
+        await asyncio.wait({flying, daemon}, return_when=asyncio.FIRST_COMPLETED)
+    except BaseException:
+        flying.cancel()
+        await asyncio.gather(flying, return_exceptions=True)
+        raise
+    if flying.done():
+        flying.result()  # the flight's own end: done, or its failure
+        return
+    flying.cancel()
+    await asyncio.gather(flying, return_exceptions=True)
+    if daemon.cancelled():
+        how = "cancelled"
+    elif daemon.exception() is not None:
+        how = f"failed: {daemon.exception()!r}"
+    else:
+        how = f"exit code {daemon.result()}"
+    raise LinkError(f"avoidd stopped during the run ({how}); the flight was ended")
 
 
 @dataclass
@@ -295,7 +330,7 @@ class ExternalRun:
             gcs = await sitl.start(timeout_s=60.0)
             self.gcs = gcs
             task = asyncio.create_task(daemon.run(), name="avoidd")
-            await self._fly(gcs)
+            await fly_while_running(self._fly(gcs), task)
         except BaseException as exc:
             ended = exc
             raise

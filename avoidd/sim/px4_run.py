@@ -32,7 +32,13 @@ from avoidd.config.sources import SourceConfig
 from avoidd.daemon import Daemon
 from avoidd.errors import LinkError
 from avoidd.mavlink import codec as mav
-from avoidd.sim.external import ExternalRun, ExternalSummary, Mode, daemon_config
+from avoidd.sim.external import (
+    ExternalRun,
+    ExternalSummary,
+    Mode,
+    daemon_config,
+    fly_while_running,
+)
 from avoidd.sim.gcs import GroundStation, StickStream
 from avoidd.sim.pose_source import (
     PoseRenderedSource,
@@ -140,7 +146,7 @@ class Px4Run(ExternalRun):
             self.gcs = gcs
             task = asyncio.create_task(daemon.run(), name="avoidd")
             self.sticks = gcs.sticks(_STICK_RATE_HZ, forward=self._stick_x)
-            await self._fly_px4(gcs, sitl)
+            await fly_while_running(self._fly_px4(gcs, sitl), task)
         except BaseException as exc:
             ended = exc
             raise

@@ -1,0 +1,135 @@
+"""The track velocity (fitted to positions) and the planner's drift check against it."""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import pytest
+
+from avoidd.config import AvoidanceConfig
+from avoidd.planner.core import Planner, Pose
+from avoidd.planner.track import TrackPoint, track_velocity_ne
+
+S = 1_000_000_000
+
+
+def _positions(
+    rate_hz: float,
+    seconds: float,
+    velocity: tuple[float, float],
+    noise_m: float = 0.0,
+    reported: tuple[float, float] | None = None,
+) -> list[TrackPoint]:
+    """Steady motion; the velocity reported is ``reported`` (default: the true one)."""
+    rng = np.random.default_rng(5)
+    vn, ve = reported or velocity
+    out = []
+    for i in range(int(rate_hz * seconds)):
+        t_s = i / rate_hz
+        n, e = rng.normal(0.0, noise_m, 2) if noise_m else (0.0, 0.0)
+        out.append((int(t_s * S), velocity[0] * t_s + n, velocity[1] * t_s + e, vn, ve))
+    return out
+
+
+def test_the_track_velocity_is_how_the_positions_move() -> None:
+    assert track_velocity_ne(_positions(50, 2.0, (0.45, 1.44))) == pytest.approx((0.45, 1.44))
+    assert track_velocity_ne(_positions(10, 2.0, (-1.0, 0.3))) == pytest.approx((-1.0, 0.3))
+    # Centimetre noise on the positions (PX4's estimate) stays within a few cm/s.
+    noisy = track_velocity_ne(_positions(50, 2.0, (0.0, 1.5), noise_m=0.01))
+    assert noisy is not None and noisy == pytest.approx((0.0, 1.5), abs=0.06)
+
+
+def test_the_track_is_the_positions_velocity_when_the_reported_one_disagrees() -> None:
+    # The estimate says east at 1.5 m/s; the positions move 17 degrees north of it, faster.
+    track = track_velocity_ne(_positions(50, 2.0, (0.45, 1.44), reported=(0.0, 1.5)))
+    assert track == pytest.approx((0.45, 1.44), abs=1e-6)
+
+
+def test_the_track_does_not_lag_a_braking_vehicle() -> None:
+    # Braking at 3 m/s^2 from 2 m/s, positions and velocities agreeing: the track is the
+    # newest velocity, not the window's average (which lags by a quarter of a second).
+    reports: list[TrackPoint] = []
+    for i in range(30):
+        t_s = i / 50
+        reports.append((int(t_s * S), 2.0 * t_s - 1.5 * t_s**2, 0.0, 2.0 - 3.0 * t_s, 0.0))
+    track = track_velocity_ne(reports)
+    assert track is not None and track[0] == pytest.approx(2.0 - 3.0 * 29 / 50, abs=1e-6)
+
+
+def test_too_few_positions_or_too_short_a_span_give_no_track() -> None:
+    assert track_velocity_ne([]) is None
+    assert track_velocity_ne(_positions(10, 0.2, (1.0, 0.0))) is None  # 2 positions
+    assert track_velocity_ne(_positions(50, 0.2, (1.0, 0.0))) is None  # 0.2 s span
+    # A position stream that paused: only the newest one is within the window.
+    gap = [*_positions(10, 1.0, (1.0, 0.0)), (3 * S, 3.0, 0.0, 1.0, 0.0)]
+    assert track_velocity_ne(gap) is None
+
+
+def _planner_by_a_wall(wall_north_m: float, *, both_sides: bool = False) -> Planner:
+    """A planner at the origin remembering a wall ``wall_north_m`` to the north."""
+    config = {"enabled": True, "max_speed_m_s": 2.0}
+    planner = Planner(AvoidanceConfig.model_validate(config), 20.0)
+    east = np.arange(-3.0, 3.01, 0.1)
+    points = [np.stack([np.full(east.size, wall_north_m), east], axis=1)]
+    if both_sides:
+        points.append(np.stack([np.full(east.size, -wall_north_m), east], axis=1))
+    planner.memory.north_east = np.concatenate(points)
+    planner.memory.t_ns = np.full(planner.memory.north_east.shape[0], S, dtype=np.int64)
+    return planner
+
+
+def _pose(track: tuple[float, float] | None) -> Pose:
+    # The velocity the autopilot reports says east only (its estimate), the track may not.
+    return Pose(S, 0.0, 0.0, -2.0, math.pi / 2, 0.0, 1.5, track)
+
+
+def test_drifting_toward_a_wall_flown_along_is_asked_back() -> None:
+    planner = _planner_by_a_wall(2.0)
+    assert planner.clearance_m + 1.0 > 2.0  # the wall is within the checked band
+    # Flying east along it, the positions close on it at 0.45 m/s while the plan does not:
+    # 0.45 less the 0.25 m/s slack is asked back, south; the way east gives way within 2 m/s.
+    north, east = planner.stop_drift((0.0, 2.0), (0.0, 2.0), _pose((0.45, 1.44)))
+    assert north == pytest.approx(-0.2, abs=1e-6)
+    assert math.hypot(north, east) == pytest.approx(2.0)
+    north, east = planner.stop_drift((0.0, 1.0), (0.0, 1.0), _pose((0.75, 1.0)))
+    assert (north, east) == pytest.approx((-0.5, 1.0), abs=1e-6)
+
+
+def test_no_drift_correction_without_a_near_one_sided_obstacle_or_an_excess() -> None:
+    plan = (0.0, 2.0)
+    near = _planner_by_a_wall(2.0)
+    assert near.stop_drift(plan, plan, _pose(None)) == plan  # no track known
+    assert near.stop_drift(plan, plan, _pose((-0.3, 1.5))) == plan  # leaving the wall
+    assert near.stop_drift(plan, plan, _pose((0.2, 1.5))) == plan  # within the slack
+    # The plan itself closes on the wall at that rate (the speed law allows it).
+    assert near.stop_drift((0.45, 1.9), (0.45, 1.9), _pose((0.6, 1.5))) == (0.45, 1.9)
+    far = _planner_by_a_wall(near.clearance_m + 1.5)
+    assert far.stop_drift(plan, plan, _pose((0.8, 1.5))) == plan
+    corridor = _planner_by_a_wall(2.0, both_sides=True)
+    assert corridor.stop_drift(plan, plan, _pose((0.8, 1.5))) == plan
+
+
+def test_the_drift_correction_only_ever_points_away_from_the_wall() -> None:
+    planner = _planner_by_a_wall(2.0)
+    rng = np.random.default_rng(11)
+    for _ in range(300):
+        plan = (float(rng.uniform(-2, 2)), float(rng.uniform(-2, 2)))
+        if math.hypot(*plan) > 2.0:
+            continue
+        track = (float(rng.uniform(-2, 2)), float(rng.uniform(-2, 2)))
+        north, east = planner.stop_drift(plan, plan, _pose(track))
+        assert math.hypot(north, east) <= 2.0 + 1e-9
+        # Never more toward the wall (north) than planned, never faster than allowed.
+        assert north <= max(plan[0], 0.0) + 1e-9
+
+
+def test_drift_already_braked_by_the_overspeed_brake_is_not_asked_back_twice() -> None:
+    planner = _planner_by_a_wall(2.0)
+    # Head-on at the wall (north): the positions close at 1.5 m/s against 1.0 planned; the
+    # overspeed brake already asks 0.25 m/s back that way, so the drift check adds 0.
+    planned, braked = (1.0, 0.0), (0.75, 0.0)
+    assert planner.stop_drift(planned, braked, _pose((1.5, 0.0))) == braked
+    # It asked less than the excess: only the rest is added.
+    north, _ = planner.stop_drift(planned, (0.9, 0.0), _pose((1.5, 0.0)))
+    assert north == pytest.approx(0.75, abs=1e-6)
