@@ -3,11 +3,15 @@
 from __future__ import annotations
 
 import math
+import time
 
 import numpy as np
 import pytest
 
-from avoidd.config import AvoidanceConfig
+from avoidd.config import AvoidanceConfig, MavlinkConfig
+from avoidd.mavlink import codec as mav
+from avoidd.mavlink.link import MavLink
+from avoidd.mavlink.vehicle import Vehicle
 from avoidd.planner.core import Planner, Pose
 from avoidd.planner.track import TrackPoint, track_velocity_ne
 
@@ -79,35 +83,36 @@ def _planner_by_a_wall(wall_north_m: float, *, both_sides: bool = False) -> Plan
     return planner
 
 
-def _pose(track: tuple[float, float] | None) -> Pose:
-    # The velocity the autopilot reports says east only (its estimate), the track may not.
-    return Pose(S, 0.0, 0.0, -2.0, math.pi / 2, 0.0, 1.5, track)
+def _pose(track: tuple[float, float] | None, reported: tuple[float, float] = (0.0, 1.5)) -> Pose:
+    # By default the autopilot reports flying east along the wall at 1.5 m/s.
+    return Pose(S, 0.0, 0.0, -2.0, math.pi / 2, *reported, track)
 
 
-def test_drifting_toward_a_wall_flown_along_is_asked_back() -> None:
+def test_drifting_toward_a_wall_flown_along_is_taken_off_the_command() -> None:
     planner = _planner_by_a_wall(2.0)
     assert planner.clearance_m + 1.0 > 2.0  # the wall is within the checked band
-    # Flying east along it, the positions close on it at 0.45 m/s while the plan does not:
-    # 0.45 less the 0.25 m/s slack is asked back, south; the way east gives way within 2 m/s.
-    north, east = planner.stop_drift((0.0, 2.0), (0.0, 2.0), _pose((0.45, 1.44)))
-    assert north == pytest.approx(-0.2, abs=1e-6)
+    # The autopilot reports east at 1.5 m/s, its positions close on the wall at 0.45 m/s:
+    # 0.45 less 0.1 of noise is asked away from it, south; the way east gives way within 2.
+    north, east = planner.stop_drift((0.0, 2.0), _pose((0.45, 1.44)))
+    assert north == pytest.approx(-0.35, abs=1e-6)
     assert math.hypot(north, east) == pytest.approx(2.0)
-    north, east = planner.stop_drift((0.0, 1.0), (0.0, 1.0), _pose((0.75, 1.0)))
-    assert (north, east) == pytest.approx((-0.5, 1.0), abs=1e-6)
+    north, east = planner.stop_drift((0.0, 1.0), _pose((0.75, 1.0)))
+    assert (north, east) == pytest.approx((-0.65, 1.0), abs=1e-6)
 
 
-def test_no_drift_correction_without_a_near_one_sided_obstacle_or_an_excess() -> None:
+def test_no_drift_correction_without_a_near_one_sided_obstacle_or_a_disagreement() -> None:
     plan = (0.0, 2.0)
     near = _planner_by_a_wall(2.0)
-    assert near.stop_drift(plan, plan, _pose(None)) == plan  # no track known
-    assert near.stop_drift(plan, plan, _pose((-0.3, 1.5))) == plan  # leaving the wall
-    assert near.stop_drift(plan, plan, _pose((0.2, 1.5))) == plan  # within the slack
-    # The plan itself closes on the wall at that rate (the speed law allows it).
-    assert near.stop_drift((0.45, 1.9), (0.45, 1.9), _pose((0.6, 1.5))) == (0.45, 1.9)
+    assert near.stop_drift(plan, _pose(None)) == plan  # no track known
+    assert near.stop_drift(plan, _pose((-0.3, 1.5))) == plan  # drifting away from the wall
+    assert near.stop_drift(plan, _pose((0.08, 1.5))) == plan  # within the noise
+    # Closing on the wall as reported (the estimates agree): the speed law and the overspeed
+    # brake see that; nothing here.
+    assert near.stop_drift(plan, _pose((0.6, 1.5), reported=(0.6, 1.5))) == plan
     far = _planner_by_a_wall(near.clearance_m + 1.5)
-    assert far.stop_drift(plan, plan, _pose((0.8, 1.5))) == plan
+    assert far.stop_drift(plan, _pose((0.8, 1.5))) == plan
     corridor = _planner_by_a_wall(2.0, both_sides=True)
-    assert corridor.stop_drift(plan, plan, _pose((0.8, 1.5))) == plan
+    assert corridor.stop_drift(plan, _pose((0.8, 1.5))) == plan
 
 
 def test_the_drift_correction_only_ever_points_away_from_the_wall() -> None:
@@ -118,18 +123,36 @@ def test_the_drift_correction_only_ever_points_away_from_the_wall() -> None:
         if math.hypot(*plan) > 2.0:
             continue
         track = (float(rng.uniform(-2, 2)), float(rng.uniform(-2, 2)))
-        north, east = planner.stop_drift(plan, plan, _pose(track))
+        reported = (float(rng.uniform(-2, 2)), float(rng.uniform(-2, 2)))
+        north, east = planner.stop_drift(plan, _pose(track, reported))
         assert math.hypot(north, east) <= 2.0 + 1e-9
         # Never more toward the wall (north) than planned, never faster than allowed.
         assert north <= max(plan[0], 0.0) + 1e-9
 
 
-def test_drift_already_braked_by_the_overspeed_brake_is_not_asked_back_twice() -> None:
-    planner = _planner_by_a_wall(2.0)
-    # Head-on at the wall (north): the positions close at 1.5 m/s against 1.0 planned; the
-    # overspeed brake already asks 0.25 m/s back that way, so the drift check adds 0.
-    planned, braked = (1.0, 0.0), (0.75, 0.0)
-    assert planner.stop_drift(planned, braked, _pose((1.5, 0.0))) == braked
-    # It asked less than the excess: only the rest is added.
-    north, _ = planner.stop_drift(planned, (0.9, 0.0), _pose((1.5, 0.0)))
-    assert north == pytest.approx(0.75, abs=1e-6)
+def test_the_vehicle_keeps_the_reported_positions_for_the_track() -> None:
+    config = MavlinkConfig(connection="udpout:127.0.0.1:9")
+    link = MavLink(config.link, mav.Codec(1, 196))
+    vehicle = Vehicle(link, config, lambda severity, text, key=None: None)
+    sender = mav.Codec(1, 1)
+
+    base_ns = time.monotonic_ns()
+
+    def feed(message: mav.Message, t_ms: int = 0) -> None:
+        # Received as it was sent: the autopilot's clock runs with avoidd's.
+        for decoded in link.codec.decode(sender.pack(message)):
+            vehicle.handle(decoded, base_ns + t_ms * 1_000_000)
+
+    feed(sender.build("HEARTBEAT", 2, mav.MAV_AUTOPILOT_PX4, 1, 0, 4))
+    # 20 Hz for 1 s: the estimate reports east at 1.5 m/s, the positions also move north.
+    for i in range(20):
+        t_ms = 5000 + 50 * i
+        north, east = 0.45 * i / 20, 1.44 * i / 20
+        feed(sender.build("LOCAL_POSITION_NED", t_ms, north, east, -2.0, 0.0, 1.5, 0.0), t_ms)
+    assert len(vehicle.positions) == 20
+    assert track_velocity_ne(vehicle.positions) == pytest.approx((0.45, 1.44), abs=1e-3)
+    # A repeat of the newest report adds nothing; a clock far back (a reboot) starts over.
+    feed(sender.build("LOCAL_POSITION_NED", 5950, 0.0, 0.0, -2.0, 0.0, 1.5, 0.0), 5960)
+    assert len(vehicle.positions) == 20
+    feed(sender.build("LOCAL_POSITION_NED", 100, 0.0, 0.0, -2.0, 0.0, 1.5, 0.0), 6000)
+    assert len(vehicle.positions) == 1 and track_velocity_ne(vehicle.positions) is None

@@ -96,6 +96,9 @@ the latency the speed law allows for lags it so while braking): no extra braking
 _DRIFT_BAND_M = 1.0
 """Drift toward what is within the clearance plus this is checked (see :meth:`Planner.stop_drift`):
 about a second of the drift seen in SITL before it would reach the clearance."""
+_DRIFT_SLACK_M_S = 0.1
+"""Disagreement between the track and the reported velocity up to this is noise (see
+:meth:`Planner.stop_drift`)."""
 _LOOK_ASIDE_RAD = math.radians(90.0)
 """When the way chosen is this far from the best way were unseen ground free (the vehicle is
 about to turn away from it), the cameras look at the first unseen part of that best way."""
@@ -367,52 +370,45 @@ class Planner:
         speed = min(_BACK_AWAY_MAX_M_S, _BACK_AWAY_GAIN * inside_m)
         return (-speed * math.cos(toward), -speed * math.sin(toward))
 
-    def stop_drift(
-        self, planned_m_s: tuple[float, float], braked_m_s: tuple[float, float], pose: Pose
-    ) -> tuple[float, float]:
-        """The planned velocity, with the drift toward a near obstacle asked back.
+    def stop_drift(self, velocity_m_s: tuple[float, float], pose: Pose) -> tuple[float, float]:
+        """The velocity to command, less the drift toward a near obstacle it would bring.
 
         The autopilot flies its own velocity estimate, which need not agree with how its
-        position moves (:mod:`avoidd.planner.track`): a vehicle told to fly along a wall can
-        close on it at half a metre per second while the velocity it reports shows none. So
-        where remembered obstacles lie within the clearance plus :data:`_DRIFT_BAND_M`, all
-        on one side, and the positions approach that side faster than the plan does (by more
-        than the slack a vehicle following its setpoint lags it by), the excess is asked back,
-        away from that side, less what :func:`brake_overspeed` already asks that way. The
-        correction only ever points away from what is near; the plan gives way to it within
-        the maximum speed.
+        position moves (:mod:`avoidd.planner.track`): told to fly along a wall and reporting
+        that it does, the vehicle can close on it at 0.2-0.5 m/s for seconds. That
+        disagreement (the track velocity less the reported one) carries over to whatever is
+        commanded, so where remembered obstacles lie within the clearance plus
+        :data:`_DRIFT_BAND_M`, all on one side, the part of it toward that side (less
+        :data:`_DRIFT_SLACK_M_S` of noise) is taken off the command: the autopilot is asked
+        to fly that much away in its own frame, which leaves the positions where the plan
+        wants them. Nothing is taken off for a drift away from the side or elsewhere; the
+        correction only ever points away from what is near, and the plan gives way to it
+        within the maximum speed.
 
         Args:
-            planned_m_s: The velocity (north, east) planned, back-away included.
-            braked_m_s: The same after :func:`brake_overspeed`.
-            pose: The vehicle's state (its track velocity).
+            velocity_m_s: The velocity (north, east) planned (and braked).
+            pose: The vehicle's state: its reported and track velocity.
 
         Returns:
             The velocity to command (north, east).
         """
         if pose.track_ne_m_s is None:
-            return braked_m_s
+            return velocity_m_s
         offsets = self.memory.offsets((pose.north_m, pose.east_m))
         if not offsets.size:
-            return braked_m_s
+            return velocity_m_s
         ranges_m = np.hypot(offsets[:, 0], offsets[:, 1])
         toward = self._side_within(offsets, ranges_m, self.clearance_m + _DRIFT_BAND_M)
         if toward is None:
-            return braked_m_s
-        side = (math.cos(toward), math.sin(toward))
-
-        def closing(velocity: tuple[float, float]) -> float:
-            return velocity[0] * side[0] + velocity[1] * side[1]
-
-        excess_m_s = (
-            closing(pose.track_ne_m_s) - max(0.0, closing(planned_m_s)) - _OVERSPEED_SLACK_M_S
-        )
-        asked_m_s = max(0.0, closing(planned_m_s) - closing(braked_m_s))
-        extra_m_s = _OVERSPEED_GAIN * excess_m_s - asked_m_s
-        if extra_m_s <= 0.0:
-            return braked_m_s
-        back = (-extra_m_s * side[0], -extra_m_s * side[1])
-        return _with_back_away(braked_m_s, back, self.config.max_speed_m_s)
+            return velocity_m_s
+        side_n, side_e = math.cos(toward), math.sin(toward)
+        drift_n = pose.track_ne_m_s[0] - pose.north_m_s
+        drift_e = pose.track_ne_m_s[1] - pose.east_m_s
+        closing_m_s = drift_n * side_n + drift_e * side_e - _DRIFT_SLACK_M_S
+        if closing_m_s <= 0.0:
+            return velocity_m_s
+        back = (-closing_m_s * side_n, -closing_m_s * side_e)
+        return _with_back_away(velocity_m_s, back, self.config.max_speed_m_s)
 
     def free_m(
         self, pose: Pose, headings_rad: np.ndarray, buffer_m: float | np.ndarray = 0.0
@@ -594,8 +590,8 @@ class Planner:
         north, east = _with_back_away(
             (speed * math.cos(chosen), speed * math.sin(chosen)), away, config.max_speed_m_s
         )
-        braked = brake_overspeed((north, east), away, pose, config.max_speed_m_s)
-        north, east = self.stop_drift((north, east), braked, pose)
+        north, east = brake_overspeed((north, east), away, pose, config.max_speed_m_s)
+        north, east = self.stop_drift((north, east), pose)
         velocity = (north, east, vertical)
         return Decision(
             velocity,
