@@ -793,10 +793,10 @@ def brake_overspeed(
     Returns:
         The velocity to command (north, east).
     """
-    moving_m_s = math.hypot(pose.north_m_s, pose.east_m_s)
-    if moving_m_s == 0.0:
+    unit = _unit((pose.north_m_s, pose.east_m_s))
+    if unit is None:
         return planned_m_s
-    unit = np.array([pose.north_m_s, pose.east_m_s]) / moving_m_s
+    moving_m_s = math.hypot(pose.north_m_s, pose.east_m_s)
     planned = np.array(planned_m_s, dtype=np.float64)
     wanted_m_s = max(0.0, float(planned @ unit))
     excess_m_s = moving_m_s - wanted_m_s - _OVERSPEED_SLACK_M_S
