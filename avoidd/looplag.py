@@ -5,9 +5,9 @@ lateness can be the kernel giving the CPU to another process: the loop thread wa
 but waited in the run queue. Linux counts that wait per thread (``run_delay``, the second field
 of ``/proc/<pid>/task/<tid>/schedstat``). A thread of the process that the kernel preempts
 while it holds the GIL makes the loop thread wait too, off the run queue; its own run-queue
-wait bounds that. The interpreter's garbage collector stops every thread while it runs, whatever
-the loop was doing; its pauses are timed (``gc.callbacks``) and counted apart, since their
-length follows the size of the whole process's heap (in a test, the whole suite's). Lag minus
+wait bounds that. The interpreter's garbage collector holds the GIL while it runs, whatever the
+loop was doing; its CPU time is taken (``gc.callbacks``) and counted apart, since its length
+follows the size of the whole process's heap (in a test, the whole suite's). Lag minus
 those waits and pauses is the part the process itself caused (a blocking call in the loop,
 heavy work in a callback). Where schedstat is missing, the own lag is the lag minus the pauses.
 """
@@ -105,19 +105,27 @@ def _load_ms(
 
 
 class _GcPauses:
-    """Total time the garbage collector has run since ``start`` (ns), from ``gc.callbacks``."""
+    """CPU time the garbage collector has run since ``start`` (ns), on any thread.
+
+    A collection holds the GIL throughout: on the loop thread it stops the loop, on another
+    it keeps the loop from running Python (as a thread preempted holding the GIL does; a
+    collection that overlaps a call of the loop's that had released the GIL is subtracted
+    too, the same over-count as for run-queue waits: a blocking call in the loop shows on
+    every occurrence, not only where it overlaps one). CPU time, not wall time: a
+    collection's own waits for a CPU are already the load.
+    """
 
     def __init__(self) -> None:
         self.total_ns = 0
-        self._began_ns = 0
+        self._began_ns: dict[int, int] = {}
 
     def _callback(self, phase: str, info: dict[str, Any]) -> None:
-        now_ns = time.perf_counter_ns()
+        now_ns = time.thread_time_ns()
+        thread = threading.get_native_id()
         if phase == "start":
-            self._began_ns = now_ns
-        elif self._began_ns:
-            self.total_ns += now_ns - self._began_ns
-            self._began_ns = 0
+            self._began_ns[thread] = now_ns
+        elif (began_ns := self._began_ns.pop(thread, None)) is not None:
+            self.total_ns += now_ns - began_ns
 
     def start(self) -> None:
         """Begin timing the collector's runs."""
@@ -137,10 +145,12 @@ class LagSample:
         lag_ms: How late the wake-up came (wall clock).
         load_ms: Of it, time the loop thread (and the longest-waiting other thread) waited for
             a CPU; None without schedstat.
-        gc_ms: Time the garbage collector ran meanwhile.
+        gc_ms: CPU time the garbage collector ran meanwhile (on any thread: it holds the
+            GIL).
         own_ms: What is left: the loop's own doing.
-        loop_cpu_ms: Time the loop thread spent on a CPU meanwhile (near ``own_ms``: the loop
-            was busy computing; near 0: it was blocked); None without schedstat.
+        loop_cpu_ms: Time the loop thread spent on a CPU meanwhile, collections included
+            (near ``own_ms + gc_ms``: the loop was busy computing; near 0: it was blocked, on
+            a call or on the GIL); None without schedstat.
     """
 
     lag_ms: float
@@ -209,7 +219,7 @@ class LagMonitor:
                     own_ms -= load_ms
                     self.accounted = True
                 self.max_lag_ms = max(self.max_lag_ms, lag_ms)
-                if self.worst is None or own_ms > self.max_own_lag_ms:
+                if self.worst is None or own_ms > self.worst.own_ms:
                     cpu_ms = None
                     if cpu0_ns is not None and cpu1_ns is not None:
                         cpu_ms = (cpu1_ns - cpu0_ns) / 1e6

@@ -88,8 +88,9 @@ async def test_garbage_collection_pauses_are_counted_apart_from_the_loops_own_la
     collecting = await _measure(0.0, 1.5, heap=1_500_000)
     blocked = await _measure(0.06, 1.0, heap=0)
     assert collecting.accounted and collecting.samples > 5
-    # Full collections over millions of objects make the loop late by tens of milliseconds...
-    assert collecting.max_lag_ms >= 45.0, collecting.max_lag_ms
+    # Full collections over a million and a half objects make the loop late (tens of
+    # milliseconds here; less on a faster machine)...
+    assert collecting.max_lag_ms >= 10.0, collecting.max_lag_ms
     # ...which are the collector's pauses, not the loop's own lateness...
     assert collecting.max_own_lag_ms < 0.5 * collecting.max_lag_ms, collecting
     # ...while a blocking call is no garbage collection.

@@ -12,7 +12,7 @@ from avoidd.config import AvoidanceConfig, MavlinkConfig
 from avoidd.mavlink import codec as mav
 from avoidd.mavlink.link import MavLink
 from avoidd.mavlink.vehicle import Vehicle
-from avoidd.planner.core import Planner, Pose
+from avoidd.planner.core import Goal, Planner, Pose
 from avoidd.planner.track import TrackPoint, track_velocity_ne
 
 S = 1_000_000_000
@@ -61,6 +61,23 @@ def test_the_track_does_not_lag_a_braking_vehicle() -> None:
     assert track is not None and track[0] == pytest.approx(2.0 - 3.0 * 29 / 50, abs=1e-6)
 
 
+def test_the_track_is_right_through_a_step_in_velocity() -> None:
+    # 1.5 m/s east, then a hard turn to 1.5 m/s north between two reports (positions moving
+    # as the reports say, trapezoids): the track is the newest reported velocity throughout.
+    reports: list[TrackPoint] = []
+    north = east = 0.0
+    previous = (0.0, 1.5)
+    for i in range(40):
+        velocity = (0.0, 1.5) if i < 20 else (1.5, 0.0)
+        north += (previous[0] + velocity[0]) / 2 / 50
+        east += (previous[1] + velocity[1]) / 2 / 50
+        previous = velocity
+        reports.append((i * S // 50, north, east, *velocity))
+        track = track_velocity_ne(reports)
+        if track is not None:
+            assert track == pytest.approx(velocity, abs=0.03), i
+
+
 def test_too_few_positions_or_too_short_a_span_give_no_track() -> None:
     assert track_velocity_ne([]) is None
     assert track_velocity_ne(_positions(10, 0.2, (1.0, 0.0))) is None  # 2 positions
@@ -72,7 +89,7 @@ def test_too_few_positions_or_too_short_a_span_give_no_track() -> None:
 
 def _planner_by_a_wall(wall_north_m: float, *, both_sides: bool = False) -> Planner:
     """A planner at the origin remembering a wall ``wall_north_m`` to the north."""
-    config = {"enabled": True, "max_speed_m_s": 2.0}
+    config = {"enabled": True, "max_speed_m_s": 2.0, "unknown": "free"}
     planner = Planner(AvoidanceConfig.model_validate(config), 20.0)
     east = np.arange(-3.0, 3.01, 0.1)
     points = [np.stack([np.full(east.size, wall_north_m), east], axis=1)]
@@ -88,46 +105,62 @@ def _pose(track: tuple[float, float] | None, reported: tuple[float, float] = (0.
     return Pose(S, 0.0, 0.0, -2.0, math.pi / 2, *reported, track)
 
 
-def test_drifting_toward_a_wall_flown_along_is_taken_off_the_command() -> None:
+def test_drifting_toward_a_wall_flown_along_is_asked_back() -> None:
     planner = _planner_by_a_wall(2.0)
     assert planner.clearance_m + 1.0 > 2.0  # the wall is within the checked band
     # The autopilot reports east at 1.5 m/s, its positions close on the wall at 0.45 m/s:
-    # 0.45 less 0.1 of noise is asked away from it, south; the way east gives way within 2.
-    north, east = planner.stop_drift((0.0, 2.0), _pose((0.45, 1.44)))
-    assert north == pytest.approx(-0.35, abs=1e-6)
-    assert math.hypot(north, east) == pytest.approx(2.0)
-    north, east = planner.stop_drift((0.0, 1.0), _pose((0.75, 1.0)))
-    assert (north, east) == pytest.approx((-0.65, 1.0), abs=1e-6)
+    # 0.45 less 0.1 of noise is asked away from it, south.
+    assert planner.drift_back_m_s(_pose((0.45, 1.44))) == pytest.approx((-0.35, 0.0), abs=1e-6)
+    assert planner.drift_back_m_s(_pose((0.75, 1.0))) == pytest.approx((-0.65, 0.0), abs=1e-6)
+    # A position that jumps (an estimator reset) asks no more than a back-away at most does.
+    assert planner.drift_back_m_s(_pose((5.0, 1.5))) == pytest.approx((-0.75, 0.0), abs=1e-6)
+
+
+def test_the_drift_is_asked_back_from_a_wall_at_any_angle() -> None:
+    # The wall north-east of the vehicle (45 degrees): the correction points south-west.
+    planner = _planner_by_a_wall(2.0)
+    turn = np.array([[1.0, -1.0], [1.0, 1.0]]) / math.sqrt(2.0)  # 45 degrees clockwise
+    planner.memory.north_east = planner.memory.north_east @ turn.T
+    back = planner.drift_back_m_s(_pose((0.5, 1.8), reported=(0.0, 1.5)))
+    # Closing along the north-east diagonal at (0.5 + 0.3) / sqrt(2), less the noise.
+    closing = (0.5 + 0.3) / math.sqrt(2.0) - 0.1
+    assert back == pytest.approx((-closing / math.sqrt(2.0), -closing / math.sqrt(2.0)), abs=0.02)
 
 
 def test_no_drift_correction_without_a_near_one_sided_obstacle_or_a_disagreement() -> None:
-    plan = (0.0, 2.0)
     near = _planner_by_a_wall(2.0)
-    assert near.stop_drift(plan, _pose(None)) == plan  # no track known
-    assert near.stop_drift(plan, _pose((-0.3, 1.5))) == plan  # drifting away from the wall
-    assert near.stop_drift(plan, _pose((0.08, 1.5))) == plan  # within the noise
+    assert near.drift_back_m_s(_pose(None)) == (0.0, 0.0)  # no track known
+    assert near.drift_back_m_s(_pose((-0.3, 1.5))) == (0.0, 0.0)  # drifting away
+    assert near.drift_back_m_s(_pose((0.08, 1.5))) == (0.0, 0.0)  # within the noise
     # Closing on the wall as reported (the estimates agree): the speed law and the overspeed
     # brake see that; nothing here.
-    assert near.stop_drift(plan, _pose((0.6, 1.5), reported=(0.6, 1.5))) == plan
+    assert near.drift_back_m_s(_pose((0.6, 1.5), reported=(0.6, 1.5))) == (0.0, 0.0)
     far = _planner_by_a_wall(near.clearance_m + 1.5)
-    assert far.stop_drift(plan, _pose((0.8, 1.5))) == plan
+    assert far.drift_back_m_s(_pose((0.8, 1.5))) == (0.0, 0.0)
     corridor = _planner_by_a_wall(2.0, both_sides=True)
-    assert corridor.stop_drift(plan, _pose((0.8, 1.5))) == plan
+    assert corridor.drift_back_m_s(_pose((0.8, 1.5))) == (0.0, 0.0)
 
 
 def test_the_drift_correction_only_ever_points_away_from_the_wall() -> None:
     planner = _planner_by_a_wall(2.0)
     rng = np.random.default_rng(11)
     for _ in range(300):
-        plan = (float(rng.uniform(-2, 2)), float(rng.uniform(-2, 2)))
-        if math.hypot(*plan) > 2.0:
-            continue
         track = (float(rng.uniform(-2, 2)), float(rng.uniform(-2, 2)))
         reported = (float(rng.uniform(-2, 2)), float(rng.uniform(-2, 2)))
-        north, east = planner.stop_drift(plan, _pose(track, reported))
-        assert math.hypot(north, east) <= 2.0 + 1e-9
-        # Never more toward the wall (north) than planned, never faster than allowed.
-        assert north <= max(plan[0], 0.0) + 1e-9
+        north, east = planner.drift_back_m_s(_pose(track, reported))
+        assert north <= 0.0 and math.hypot(north, east) <= 0.75 + 1e-9
+
+
+def test_a_planner_drifting_along_a_wall_commands_away_from_it() -> None:
+    # The whole decision: flying east to a goal along a wall 2 m north, the positions closing
+    # on it at 0.5 m/s that the reports do not show: the setpoint leans south by the drift.
+    goal = Goal(0.0, 30.0, 2.0)
+    agreeing = _planner_by_a_wall(2.0).decide(S, _pose((0.0, 1.5)), goal, fresh=True)
+    drifting = _planner_by_a_wall(2.0).decide(S, _pose((0.5, 1.5)), goal, fresh=True)
+    assert agreeing.state == drifting.state == "moving"
+    lean = drifting.velocity_ned[0] - agreeing.velocity_ned[0]
+    assert lean == pytest.approx(-0.4, abs=0.05)
+    assert math.hypot(*drifting.velocity_ned[:2]) <= 2.0 + 1e-9
 
 
 def test_the_vehicle_keeps_the_reported_positions_for_the_track() -> None:

@@ -76,3 +76,4 @@ async def test_a_flight_that_ends_first_returns_or_raises_its_own_failure() -> N
             await fly_while_running(failing(), daemon)
     finally:
         daemon.cancel()
+        await asyncio.gather(daemon, return_exceptions=True)

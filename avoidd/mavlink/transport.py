@@ -10,6 +10,7 @@ import socket
 import termios
 import tty
 from collections.abc import Callable
+from concurrent.futures import ThreadPoolExecutor
 from typing import Any, Protocol
 
 from avoidd.aio import cancel_task
@@ -285,6 +286,10 @@ class _Serial:
         self._task: asyncio.Task[None] | None = None
         self._lost = asyncio.Event()
         self.reconnects = 0
+        # The port's own thread for opening and closing it: a close may wait for its output to
+        # drain (up to the driver's closing_wait), which must hold up neither the loop nor the
+        # shared default executor.
+        self._executor = ThreadPoolExecutor(max_workers=1, thread_name_prefix="serial-port")
 
     @property
     def connected(self) -> bool:
@@ -293,6 +298,7 @@ class _Serial:
     async def open(self) -> None:
         if self._spec.baud not in _BAUD_CONSTANTS:
             raise LinkError(f"MAVLink {self._spec}: baud rate {self._spec.baud} not supported here")
+        self._executor = ThreadPoolExecutor(max_workers=1, thread_name_prefix="serial-port")
         self._task = asyncio.create_task(self._run(), name=f"serial {self._spec}")
 
     def _open_device(self) -> int:
@@ -315,12 +321,22 @@ class _Serial:
 
         Opening (and setting up) a serial device may wait on its driver; the loop must not.
         """
-        future = asyncio.get_running_loop().run_in_executor(None, self._open_device)
+        future = asyncio.get_running_loop().run_in_executor(self._executor, self._open_device)
         try:
             return await asyncio.shield(future)
         except asyncio.CancelledError:
-            future.add_done_callback(_close_opened)  # closing meanwhile: do not leak the port
+            future.add_done_callback(self._close_opened)  # closing meanwhile: no leaked port
             raise
+
+    def _close_opened(self, future: asyncio.Future[int]) -> None:
+        if not future.cancelled() and future.exception() is None:
+            self._close_off_loop(future.result())
+
+    def _close_off_loop(self, fd: int) -> None:
+        try:
+            self._executor.submit(_close_quietly, fd)
+        except RuntimeError:  # the executor is shut down: close here
+            _close_quietly(fd)
 
     async def _run(self) -> None:
         backoff_s = 0.1
@@ -392,10 +408,7 @@ class _Serial:
         loop.remove_writer(self._fd)
         # Closing a tty may wait for its output to drain or for the kernel's tty work (a busy
         # machine's worker threads): off the loop.
-        try:
-            loop.run_in_executor(None, _close_quietly, self._fd)
-        except RuntimeError:  # the loop is shutting down its threads: close here
-            _close_quietly(self._fd)
+        self._close_off_loop(self._fd)
         self._fd = None
         self._pending.clear()
         self._lost.set()
@@ -418,17 +431,14 @@ class _Serial:
             loop = asyncio.get_running_loop()
             loop.remove_reader(fd)
             loop.remove_writer(fd)
-            await loop.run_in_executor(None, _close_quietly, fd)
+            self._close_off_loop(fd)
+        # Closes still draining finish in the port's thread; nothing waits for them here.
+        self._executor.shutdown(wait=False)
 
 
 def _close_quietly(fd: int) -> None:
     with contextlib.suppress(OSError):
         os.close(fd)
-
-
-def _close_opened(future: asyncio.Future[int]) -> None:
-    if not future.cancelled() and future.exception() is None:
-        _close_quietly(future.result())
 
 
 class _TcpServer:

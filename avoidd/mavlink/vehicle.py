@@ -40,9 +40,9 @@ as long each time, up to 2**6 times it (64 s for most streams)."""
 _NOT_AUTOPILOTS = {mav.MAV_TYPE_GCS, mav.MAV_TYPE_ONBOARD_CONTROLLER}
 _ORIGIN_RETRY_NS = 2_000_000_000
 _HOME_AFTER_ARMING_NS = 1_000_000_000
+"""Home is asked again this long after arming (both autopilots set it when they arm)."""
 _POSITIONS_KEPT = 64
 """Local positions kept for the track velocity (over a second at PX4's 50 Hz)."""
-"""Home is asked again this long after arming (both autopilots set it when they arm)."""
 _GPS_GLOBAL_ORIGIN = 49
 _HOME_POSITION = 242
 _ORIGIN_ASKS_BEFORE_WARNING = 5
@@ -146,7 +146,8 @@ class Vehicle:
         self.attitude = AttitudeHistory()
         self.position: LocalPosition | None = None
         self.positions: deque[TrackPoint] = deque(maxlen=_POSITIONS_KEPT)
-        """The newest local positions and velocities, for the track velocity."""
+        """The newest local positions and velocities (times: the autopilot's boot clock), for
+        the track velocity."""
         self.position_received_ns = 0
         """When the newest LOCAL_POSITION_NED arrived (local monotonic clock)."""
         self.rangefinder: Rangefinder | None = None
@@ -354,11 +355,14 @@ class Vehicle:
         t_ns = self.clock.to_local_ns(message.time_boot_ms)
         assert t_ns is not None
         m = message
-        if self.positions and t_ns < self.positions[-1][0] - 1_000_000_000:
-            self.positions.clear()  # the autopilot's clock went back (a reboot): start over
         self.position = LocalPosition(t_ns, m.x, m.y, m.z, m.vx, m.vy, m.vz)
-        if not self.positions or t_ns > self.positions[-1][0]:  # a repeat or late one: skipped
-            self.positions.append((t_ns, float(m.x), float(m.y), float(m.vx), float(m.vy)))
+        # The track is fitted on the autopilot's own clock (positions and velocities were
+        # measured on it; the mapping to avoidd's clock moves with delivery jitter).
+        boot_ns = int(message.time_boot_ms) * 1_000_000
+        if self.positions and boot_ns < self.positions[-1][0]:
+            self.positions.clear()  # its clock went back (a reboot): start over
+        if not self.positions or boot_ns > self.positions[-1][0]:  # a repeat: skipped
+            self.positions.append((boot_ns, float(m.x), float(m.y), float(m.vx), float(m.vy)))
         self.position_received_ns = received_ns
 
     def _on_distance_sensor(self, message: mav.Message, received_ns: int) -> None:

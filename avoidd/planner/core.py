@@ -94,11 +94,12 @@ _OVERSPEED_SLACK_M_S = 0.25
 """Faster than the plan by at most this is ordinary lag (a vehicle that follows its setpoint within
 the latency the speed law allows for lags it so while braking): no extra braking."""
 _DRIFT_BAND_M = 1.0
-"""Drift toward what is within the clearance plus this is checked (see :meth:`Planner.stop_drift`):
-about a second of the drift seen in SITL before it would reach the clearance."""
+"""Drift toward what is within the clearance plus this is checked (see
+:meth:`Planner.drift_back_m_s`): about a second of the drift seen in SITL before it would reach
+the clearance."""
 _DRIFT_SLACK_M_S = 0.1
 """Disagreement between the track and the reported velocity up to this is noise (see
-:meth:`Planner.stop_drift`)."""
+:meth:`Planner.drift_back_m_s`)."""
 _LOOK_ASIDE_RAD = math.radians(90.0)
 """When the way chosen is this far from the best way were unseen ground free (the vehicle is
 about to turn away from it), the cameras look at the first unseen part of that best way."""
@@ -370,8 +371,8 @@ class Planner:
         speed = min(_BACK_AWAY_MAX_M_S, _BACK_AWAY_GAIN * inside_m)
         return (-speed * math.cos(toward), -speed * math.sin(toward))
 
-    def stop_drift(self, velocity_m_s: tuple[float, float], pose: Pose) -> tuple[float, float]:
-        """The velocity to command, less the drift toward a near obstacle it would bring.
+    def drift_back_m_s(self, pose: Pose) -> tuple[float, float]:
+        """A velocity (north, east) that cancels the drift toward a near obstacle.
 
         The autopilot flies its own velocity estimate, which need not agree with how its
         position moves (:mod:`avoidd.planner.track`): told to fly along a wall and reporting
@@ -379,36 +380,35 @@ class Planner:
         disagreement (the track velocity less the reported one) carries over to whatever is
         commanded, so where remembered obstacles lie within the clearance plus
         :data:`_DRIFT_BAND_M`, all on one side, the part of it toward that side (less
-        :data:`_DRIFT_SLACK_M_S` of noise) is taken off the command: the autopilot is asked
-        to fly that much away in its own frame, which leaves the positions where the plan
-        wants them. Nothing is taken off for a drift away from the side or elsewhere; the
-        correction only ever points away from what is near, and the plan gives way to it
-        within the maximum speed.
+        :data:`_DRIFT_SLACK_M_S` of noise, and at most :data:`_BACK_AWAY_MAX_M_S`) is asked
+        the other way: the autopilot flies that much away in its own frame, which leaves the
+        positions where the plan wants them. It is added to the back-away (the plan gives way
+        to both within the maximum speed) and never points toward what is near. Holds
+        (arrived, dead end, stale) send zero velocity and carry no such correction.
 
         Args:
-            velocity_m_s: The velocity (north, east) planned (and braked).
             pose: The vehicle's state: its reported and track velocity.
 
         Returns:
-            The velocity to command (north, east).
+            The velocity to add (zeros: none).
         """
         if pose.track_ne_m_s is None:
-            return velocity_m_s
+            return (0.0, 0.0)
         offsets = self.memory.offsets((pose.north_m, pose.east_m))
         if not offsets.size:
-            return velocity_m_s
+            return (0.0, 0.0)
         ranges_m = np.hypot(offsets[:, 0], offsets[:, 1])
         toward = self._side_within(offsets, ranges_m, self.clearance_m + _DRIFT_BAND_M)
         if toward is None:
-            return velocity_m_s
+            return (0.0, 0.0)
         side_n, side_e = math.cos(toward), math.sin(toward)
         drift_n = pose.track_ne_m_s[0] - pose.north_m_s
         drift_e = pose.track_ne_m_s[1] - pose.east_m_s
         closing_m_s = drift_n * side_n + drift_e * side_e - _DRIFT_SLACK_M_S
         if closing_m_s <= 0.0:
-            return velocity_m_s
-        back = (-closing_m_s * side_n, -closing_m_s * side_e)
-        return _with_back_away(velocity_m_s, back, self.config.max_speed_m_s)
+            return (0.0, 0.0)
+        closing_m_s = min(closing_m_s, _BACK_AWAY_MAX_M_S)
+        return (-closing_m_s * side_n, -closing_m_s * side_e)
 
     def free_m(
         self, pose: Pose, headings_rad: np.ndarray, buffer_m: float | np.ndarray = 0.0
@@ -586,12 +586,13 @@ class Planner:
         off_rad = abs(turned_rad - self._view_offset_rad(turned_rad))
         speed *= 0.5 + 0.5 * max(0.0, math.cos(off_rad))
         yaw_rate = self._yaw_rate(float(wrap_rad(look - pose.yaw_rad)))
-        away = self.back_away_m_s(pose)
+        backing = self.back_away_m_s(pose)
+        drifting = self.drift_back_m_s(pose)
+        away = (backing[0] + drifting[0], backing[1] + drifting[1])
         north, east = _with_back_away(
             (speed * math.cos(chosen), speed * math.sin(chosen)), away, config.max_speed_m_s
         )
         north, east = brake_overspeed((north, east), away, pose, config.max_speed_m_s)
-        north, east = self.stop_drift((north, east), pose)
         velocity = (north, east, vertical)
         return Decision(
             velocity,

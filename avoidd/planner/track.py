@@ -7,9 +7,10 @@ the position's frame, so the planner checks the way the vehicle drifts toward th
 velocity the positions show.
 
 A slope fitted to positions lags (by half its window): alone it would see a braking vehicle as
-faster than it is. The difference between that slope and the reported velocities over the same
-window does not lag (both lag alike), so the newest reported velocity plus that difference is
-the positions' velocity now.
+faster than it is. So what is fitted is the disagreement itself: the positions less the
+reported velocity integrated over the same reports. Its slope is how much faster (and which
+way) the positions move than the reports say, and the newest reported velocity plus that is
+the positions' velocity now, without lag.
 """
 
 from __future__ import annotations
@@ -35,14 +36,14 @@ def track_velocity_ne(
     """The horizontal velocity the positions show now.
 
     Args:
-        reports: Reported positions and velocities in time order, times on one clock (the
-            autopilot's, mapped).
+        reports: Reported positions and velocities in time order, times on the clock the
+            positions were measured with (the autopilot's own).
         window_s: How far back from the newest report to fit.
 
     Returns:
-        ``(north_m_s, east_m_s)``: the newest reported velocity corrected by how the fitted
-        positions' slope differs from the reported velocities over the window; None when the
-        window holds too few reports or too short a span for a fit.
+        ``(north_m_s, east_m_s)``: the newest reported velocity plus the slope of the
+        positions less the integrated reported velocity over the window; None when the window
+        holds too few reports or too short a span for a fit.
     """
     if len(reports) < _MIN_POSITIONS:
         return None
@@ -54,12 +55,12 @@ def track_velocity_ne(
     t_s = (data[:, 0] - data[0, 0]) / 1e9
     if t_s[-1] < _MIN_SPAN_S:
         return None
+    # The reported velocity integrated (trapezoids) from the first report: where the reports
+    # say the vehicle went.
+    steps = np.diff(t_s)[:, None] * (data[1:, 3:5] + data[:-1, 3:5]) / 2.0
+    said = np.vstack([np.zeros((1, 2)), np.cumsum(steps, axis=0)])
+    apart = data[:, 1:3] - said
     t_s -= t_s.mean()
-    spread = float(t_s @ t_s)
-    # The slope and the reported velocity under the same weights (a least-squares slope is a
-    # weighted mean of the rates between positions): what differs is the disagreement.
-    slope = (t_s @ (data[:, 1:3] - data[:, 1:3].mean(axis=0))) / spread
-    reported = data[:, 3:5].mean(axis=0)
-    newest = data[-1, 3:5]
-    north, east = (newest + slope - reported).tolist()
+    drift = (t_s @ (apart - apart.mean(axis=0))) / float(t_s @ t_s)
+    north, east = (data[-1, 3:5] + drift).tolist()
     return (float(north), float(east))
