@@ -23,7 +23,6 @@ from avoidd.mavlink.clock import ClockSync
 from avoidd.mavlink.geo import GlobalPoint, valid_lat_lon
 from avoidd.mavlink.link import MavLink
 from avoidd.mavlink.modes import FlightMode, decode_mode
-from avoidd.planner.track import TrackPoint
 
 logger = logging.getLogger(__name__)
 
@@ -145,9 +144,11 @@ class Vehicle:
         self.clock = ClockSync()
         self.attitude = AttitudeHistory()
         self.position: LocalPosition | None = None
-        self.positions: deque[TrackPoint] = deque(maxlen=_POSITIONS_KEPT)
-        """The newest local positions and velocities (times: the autopilot's boot clock), for
-        the track velocity."""
+        self.positions: deque[tuple[int, float, float, float, float]] = deque(
+            maxlen=_POSITIONS_KEPT
+        )
+        """The newest local positions and velocities ``(t_ns, north_m, east_m, north_m_s,
+        east_m_s)``, times on the autopilot's boot clock, for the planner's track velocity."""
         self.position_received_ns = 0
         """When the newest LOCAL_POSITION_NED arrived (local monotonic clock)."""
         self.rangefinder: Rangefinder | None = None
