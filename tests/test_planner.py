@@ -86,6 +86,25 @@ def test_memory_places_readings_in_the_local_frame_with_the_pose_at_capture() ->
     np.testing.assert_allclose(memory.offsets((12.0, 9.0)), [[-2.0, 0.0]], atol=1e-9)
 
 
+def test_memory_offsets_follow_every_change_of_points_and_position() -> None:
+    # The offsets and ranges are kept between asks from one position: a new position, a new
+    # scan, an expiry or a reset must each give fresh ones, and nobody may write into them.
+    memory = ObstacleMemory(memory_s=2.0)
+    memory.add_scan(_scan({0: 4.0}), 1 * S, (0.0, 0.0), 0.0, 20.0)
+    offsets, ranges_m = memory.near((0.0, 0.0))
+    np.testing.assert_allclose(ranges_m, [4.0], atol=1e-9)
+    assert memory.near((0.0, 0.0))[0] is offsets  # asked again: the same arrays
+    with pytest.raises(ValueError):
+        offsets[0, 0] = 1.0
+    np.testing.assert_allclose(memory.near((1.0, 0.0))[1], [3.0], atol=1e-9)
+    memory.add_scan(_scan({18: 2.0}, range(14, 23)), 2 * S, (1.0, 0.0), 0.0, 20.0)  # east, 2 m
+    np.testing.assert_allclose(sorted(memory.near((1.0, 0.0))[1]), [2.0, 3.0], atol=1e-9)
+    memory.expire(int(3.5 * S))  # the first scan's point is gone
+    np.testing.assert_allclose(memory.near((1.0, 0.0))[1], [2.0], atol=1e-9)
+    memory.clear()
+    assert memory.near((1.0, 0.0))[1].size == 0
+
+
 def test_memory_keeps_what_leaves_the_view_and_forgets_it_after_the_memory_time() -> None:
     memory = ObstacleMemory(memory_s=2.0)
     memory.add_scan(_scan({0: 4.0}, range(-7, 8)), 1 * S, (0.0, 0.0), 0.0, 20.0)
@@ -564,6 +583,17 @@ def test_a_vehicle_short_of_its_plan_gets_the_plan_unchanged() -> None:
         ((-0.2, 0.1), (0.4, 0.0)),
     ]:
         assert brake_overspeed(plan, (0.0, 0.0), _moving(*velocity), 2.0) == plan
+
+
+def test_braking_on_a_zero_counts_what_the_speed_law_allows_ahead() -> None:
+    # Braking on a zero at 1.0 m/s north: within the speed law's 0.9 m/s for the way ahead
+    # (plus the slack) the zero stands; with only 0.3 m/s allowed the excess is asked back.
+    assert brake_overspeed((0.0, 0.0), (0.0, 0.0), _moving(1.0, 0.0), 2.0, 0.9) == (0.0, 0.0)
+    north, east = brake_overspeed((0.0, 0.0), (0.0, 0.0), _moving(1.0, 0.0), 2.0, 0.3)
+    assert (north, east) == pytest.approx((-(1.0 - 0.3 - 0.25), 0.0))
+    # Against nothing allowed, all of it less the slack.
+    north, east = brake_overspeed((0.0, 0.0), (0.0, 0.0), _moving(1.0, 0.0), 2.0)
+    assert (north, east) == pytest.approx((-(1.0 - 0.25), 0.0))
 
 
 def test_braking_never_speeds_the_plan_up_nor_undoes_a_back_away() -> None:

@@ -11,9 +11,10 @@ import pytest
 from avoidd.config import AvoidanceConfig, MavlinkConfig
 from avoidd.mavlink import codec as mav
 from avoidd.mavlink.link import MavLink
+from avoidd.mavlink.track_history import TrackPoint
 from avoidd.mavlink.vehicle import Vehicle
 from avoidd.planner.core import Goal, Planner, Pose
-from avoidd.planner.track import TrackPoint, track_velocity_ne
+from avoidd.planner.track import track_velocity_ne
 
 S = 1_000_000_000
 
@@ -183,9 +184,9 @@ def test_the_vehicle_keeps_the_reported_positions_for_the_track() -> None:
         north, east = 0.45 * i / 20, 1.44 * i / 20
         feed(sender.build("LOCAL_POSITION_NED", t_ms, north, east, -2.0, 0.0, 1.5, 0.0), t_ms)
     assert len(vehicle.positions) == 20
-    assert track_velocity_ne(vehicle.positions) == pytest.approx((0.45, 1.44), abs=1e-3)
+    assert track_velocity_ne(vehicle.positions.reports) == pytest.approx((0.45, 1.44), abs=1e-3)
     # A repeat of the newest report adds nothing; a clock far back (a reboot) starts over.
     feed(sender.build("LOCAL_POSITION_NED", 5950, 0.0, 0.0, -2.0, 0.0, 1.5, 0.0), 5960)
     assert len(vehicle.positions) == 20
     feed(sender.build("LOCAL_POSITION_NED", 100, 0.0, 0.0, -2.0, 0.0, 1.5, 0.0), 6000)
-    assert len(vehicle.positions) == 1 and track_velocity_ne(vehicle.positions) is None
+    assert len(vehicle.positions) == 1 and track_velocity_ne(vehicle.positions.reports) is None

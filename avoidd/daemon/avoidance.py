@@ -164,7 +164,7 @@ class AvoidanceLoop:
             attitude.yaw_rad,
             position.vn_m_s,
             position.ve_m_s,
-            track_velocity_ne(self.vehicle.positions),
+            track_velocity_ne(self.vehicle.positions.reports),
         )
 
     def step(self, now_ns: int) -> Message | None:

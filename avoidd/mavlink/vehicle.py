@@ -11,7 +11,7 @@ import asyncio
 import logging
 import math
 import time
-from collections import Counter, deque
+from collections import Counter
 from collections.abc import Callable
 from dataclasses import dataclass
 from typing import Protocol
@@ -23,6 +23,7 @@ from avoidd.mavlink.clock import ClockSync
 from avoidd.mavlink.geo import GlobalPoint, valid_lat_lon
 from avoidd.mavlink.link import MavLink
 from avoidd.mavlink.modes import FlightMode, decode_mode
+from avoidd.mavlink.track_history import TrackHistory
 
 logger = logging.getLogger(__name__)
 
@@ -40,8 +41,6 @@ _NOT_AUTOPILOTS = {mav.MAV_TYPE_GCS, mav.MAV_TYPE_ONBOARD_CONTROLLER}
 _ORIGIN_RETRY_NS = 2_000_000_000
 _HOME_AFTER_ARMING_NS = 1_000_000_000
 """Home is asked again this long after arming (both autopilots set it when they arm)."""
-_POSITIONS_KEPT = 64
-"""Local positions kept for the track velocity (over a second at PX4's 50 Hz)."""
 _GPS_GLOBAL_ORIGIN = 49
 _HOME_POSITION = 242
 _ORIGIN_ASKS_BEFORE_WARNING = 5
@@ -144,11 +143,9 @@ class Vehicle:
         self.clock = ClockSync()
         self.attitude = AttitudeHistory()
         self.position: LocalPosition | None = None
-        self.positions: deque[tuple[int, float, float, float, float]] = deque(
-            maxlen=_POSITIONS_KEPT
-        )
-        """The newest local positions and velocities ``(t_ns, north_m, east_m, north_m_s,
-        east_m_s)``, times on the autopilot's boot clock, for the planner's track velocity."""
+        self.positions = TrackHistory()
+        """The newest local positions and velocities, times on the autopilot's boot clock,
+        for the planner's track velocity."""
         self.position_received_ns = 0
         """When the newest LOCAL_POSITION_NED arrived (local monotonic clock)."""
         self.rangefinder: Rangefinder | None = None
@@ -359,11 +356,7 @@ class Vehicle:
         self.position = LocalPosition(t_ns, m.x, m.y, m.z, m.vx, m.vy, m.vz)
         # The track is fitted on the autopilot's own clock (positions and velocities were
         # measured on it; the mapping to avoidd's clock moves with delivery jitter).
-        boot_ns = int(message.time_boot_ms) * 1_000_000
-        if self.positions and boot_ns < self.positions[-1][0]:
-            self.positions.clear()  # its clock went back (a reboot): start over
-        if not self.positions or boot_ns > self.positions[-1][0]:  # a repeat: skipped
-            self.positions.append((boot_ns, float(m.x), float(m.y), float(m.vx), float(m.vy)))
+        self.positions.add(int(message.time_boot_ms) * 1_000_000, m.x, m.y, m.vx, m.vy)
         self.position_received_ns = received_ns
 
     def _on_distance_sensor(self, message: mav.Message, received_ns: int) -> None:

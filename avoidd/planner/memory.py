@@ -41,6 +41,9 @@ class ObstacleMemory:
     max_points: int = 4000
     north_east: Array = field(default_factory=lambda: np.empty((0, 2)))
     t_ns: npt.NDArray[np.int64] = field(default_factory=lambda: np.empty(0, dtype=np.int64))
+    _near: tuple[Array, tuple[float, float], Array, Array] | None = field(
+        default=None, init=False, repr=False, compare=False
+    )
 
     def clear(self) -> None:
         """Forget everything."""
@@ -116,8 +119,31 @@ class ObstacleMemory:
         self.north_east, self.t_ns = self.north_east[keep], self.t_ns[keep]
 
     def offsets(self, north_east_m: tuple[float, float]) -> Array:
-        """The remembered points relative to a position, (N, 2) north and east."""
-        return self.north_east - np.asarray(north_east_m, dtype=np.float64)
+        """The remembered points relative to a position, (N, 2) north and east (read-only)."""
+        return self.near(north_east_m)[0]
+
+    def near(self, north_east_m: tuple[float, float]) -> tuple[Array, Array]:
+        """The remembered points relative to a position and their distances from it.
+
+        One decision asks for them several times from the same position: they are computed
+        once per set of points and position (every change to the points makes a new array).
+
+        Args:
+            north_east_m: The position.
+
+        Returns:
+            ``(offsets, ranges_m)``: (N, 2) north and east, and (N,) distances; read-only.
+        """
+        at = (float(north_east_m[0]), float(north_east_m[1]))
+        cached = self._near
+        if cached is not None and cached[0] is self.north_east and cached[1] == at:
+            return cached[2], cached[3]
+        offsets = self.north_east - np.asarray(at, dtype=np.float64)
+        ranges_m = np.hypot(offsets[:, 0], offsets[:, 1])
+        offsets.flags.writeable = False
+        ranges_m.flags.writeable = False
+        self._near = (self.north_east, at, offsets, ranges_m)
+        return offsets, ranges_m
 
 
 def surface_shift_rad(distance_m: Array) -> Array:

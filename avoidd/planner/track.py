@@ -19,15 +19,14 @@ from collections.abc import Sequence
 
 import numpy as np
 
+from avoidd.mavlink.track_history import TrackPoint
+
 TRACK_WINDOW_S = 0.5
 """Positions from this far back are fitted (long enough to average out the estimate's noise,
 short enough to follow how the estimates disagree as it changes)."""
 _MIN_SPAN_S = 0.3
 """A fit needs positions spanning at least this long."""
 _MIN_POSITIONS = 3
-
-TrackPoint = tuple[int, float, float, float, float]
-"""``(t_ns, north_m, east_m, north_m_s, east_m_s)``: a reported position and velocity."""
 
 
 def track_velocity_ne(

@@ -12,7 +12,6 @@ from __future__ import annotations
 
 import math
 import time
-from collections import deque
 from collections.abc import Callable
 from dataclasses import dataclass, field
 from typing import Any
@@ -21,10 +20,11 @@ import numpy as np
 
 from avoidd.config.sim import ScenarioConfig
 from avoidd.mavlink.messages import sectors_to_cm
+from avoidd.mavlink.track_history import TrackHistory
 from avoidd.perception.sectors import covered_bins
 from avoidd.planner.core import Decision, Goal, Planner, Pose
 from avoidd.planner.gating import Facts, Gate, gate
-from avoidd.planner.track import TrackPoint, track_velocity_ne
+from avoidd.planner.track import track_velocity_ne
 from avoidd.sim.flight import SimAutopilot
 from avoidd.sim.perception import StereoPerception
 from avoidd.sim.vehicle import Multirotor, VehicleState
@@ -158,7 +158,7 @@ class LockstepRun:
         self.rows: list[Row] = []
         self._pending: list[tuple[int, SectorScan, Pose]] = []
         self._latest: tuple[SectorScan, Pose] | None = None
-        self._track: deque[TrackPoint] = deque(maxlen=64)
+        self._track = TrackHistory()
 
     # --- perception ------------------------------------------------------------------------
 
@@ -173,9 +173,8 @@ class LockstepRun:
         state = self.vehicle.state
         north, east, down = (float(v) for v in state.position_m)
         vn, ve = float(state.velocity_m_s[0]), float(state.velocity_m_s[1])
-        if not self._track or t_ns > self._track[-1][0]:
-            self._track.append((t_ns, north, east, vn, ve))
-        track = track_velocity_ne(self._track)
+        self._track.add(t_ns, north, east, vn, ve)
+        track = track_velocity_ne(self._track.reports)
         return Pose(t_ns, north, east, down, state.yaw_rad, vn, ve, track)
 
     def fresh_scan(self, now_ns: int) -> SectorScan | None:
