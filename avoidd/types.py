@@ -144,6 +144,9 @@ class Mount:
 TimeArray = npt.NDArray[np.int64]
 """Per-bin times in nanoseconds."""
 
+TrackPoint = tuple[int, float, float, float, float]
+"""``(t_ns, north_m, east_m, north_m_s, east_m_s)``: a reported position and velocity."""
+
 
 @dataclass(frozen=True)
 class SectorScan:

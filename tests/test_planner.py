@@ -585,17 +585,6 @@ def test_a_vehicle_short_of_its_plan_gets_the_plan_unchanged() -> None:
         assert brake_overspeed(plan, (0.0, 0.0), _moving(*velocity), 2.0) == plan
 
 
-def test_braking_on_a_zero_counts_what_the_speed_law_allows_ahead() -> None:
-    # Braking on a zero at 1.0 m/s north: within the speed law's 0.9 m/s for the way ahead
-    # (plus the slack) the zero stands; with only 0.3 m/s allowed the excess is asked back.
-    assert brake_overspeed((0.0, 0.0), (0.0, 0.0), _moving(1.0, 0.0), 2.0, 0.9) == (0.0, 0.0)
-    north, east = brake_overspeed((0.0, 0.0), (0.0, 0.0), _moving(1.0, 0.0), 2.0, 0.3)
-    assert (north, east) == pytest.approx((-(1.0 - 0.3 - 0.25), 0.0))
-    # Against nothing allowed, all of it less the slack.
-    north, east = brake_overspeed((0.0, 0.0), (0.0, 0.0), _moving(1.0, 0.0), 2.0)
-    assert (north, east) == pytest.approx((-(1.0 - 0.25), 0.0))
-
-
 def test_braking_never_speeds_the_plan_up_nor_undoes_a_back_away() -> None:
     # Going back the way it came at 1.5 m/s while the plan says 0.4 m/s on (the speed law's
     # stopping speed toward a wall): nothing is added toward the wall.

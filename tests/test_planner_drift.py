@@ -11,10 +11,10 @@ import pytest
 from avoidd.config import AvoidanceConfig, MavlinkConfig
 from avoidd.mavlink import codec as mav
 from avoidd.mavlink.link import MavLink
-from avoidd.mavlink.track_history import TrackPoint
 from avoidd.mavlink.vehicle import Vehicle
 from avoidd.planner.core import Goal, Planner, Pose
 from avoidd.planner.track import track_velocity_ne
+from avoidd.types import TrackPoint
 
 S = 1_000_000_000
 

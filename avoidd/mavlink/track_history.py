@@ -4,8 +4,7 @@ from __future__ import annotations
 
 from collections import deque
 
-TrackPoint = tuple[int, float, float, float, float]
-"""``(t_ns, north_m, east_m, north_m_s, east_m_s)``: a reported position and velocity."""
+from avoidd.types import TrackPoint
 
 REPORTS_KEPT = 64
 """Reports kept (over a second at PX4's 50 Hz LOCAL_POSITION_NED)."""

@@ -559,18 +559,9 @@ class Planner:
             if self._back_since_ns is None:
                 self._back_since_ns = now_ns
             if now_ns - self._back_since_ns < _BACK_OUT_AFTER_NS:
-                # Braking on a zero, a vehicle still faster than it could stop from in the
-                # free distance ahead (the speed law along the way it goes) is asked for the
-                # excess back, as on any plan: PX4 SITL braked from 1.6 m/s at about
-                # 1.2 m/s^2. One that keeps to the law is left to brake as it does (braking
-                # against the zero itself would stop it short of its margin).
-                ahead_m = float(self.free_m(pose, np.array([along]))[0])
-                law_m_s = stopping_speed_m_s(
-                    ahead_m, config.max_accel_m_s2, self._latency_s(now_ns)
-                )
-                north, east = brake_overspeed(
-                    (0.0, 0.0), (0.0, 0.0), pose, config.max_speed_m_s, allowed_m_s=law_m_s
-                )
+                # A vehicle that outruns the zero it is asked for is asked for the excess
+                # back, as on any plan (PX4 braked from 1.6 m/s at about 1.2 m/s^2 on a zero).
+                north, east = brake_overspeed((0.0, 0.0), (0.0, 0.0), pose, config.max_speed_m_s)
                 return Decision((north, east, vertical), 0.0, "moving", goal_distance_m=goal_m)
         else:
             self._back_since_ns = None
@@ -772,7 +763,6 @@ def brake_overspeed(
     away_m_s: tuple[float, float],
     pose: Pose,
     max_speed_m_s: float,
-    allowed_m_s: float = 0.0,
 ) -> tuple[float, float]:
     """The planned velocity with extra braking where the vehicle outruns it.
 
@@ -800,9 +790,6 @@ def brake_overspeed(
         away_m_s: The back-away part of it (zeros: none).
         pose: The vehicle's state (its measured velocity).
         max_speed_m_s: The setpoint's speed stays within this.
-        allowed_m_s: Speed along the vehicle's direction of travel that counts as kept to the
-            plan even where the plan asks for less that way (a zero while braking: the
-            speed law's speed for the way ahead).
 
     Returns:
         The velocity to command (north, east).
@@ -812,7 +799,7 @@ def brake_overspeed(
         return planned_m_s
     moving_m_s = math.hypot(pose.north_m_s, pose.east_m_s)
     planned = np.array(planned_m_s, dtype=np.float64)
-    wanted_m_s = max(0.0, float(planned @ unit), allowed_m_s)
+    wanted_m_s = max(0.0, float(planned @ unit))
     excess_m_s = moving_m_s - wanted_m_s - _OVERSPEED_SLACK_M_S
     if excess_m_s <= 0.0:
         return planned_m_s

@@ -126,7 +126,8 @@ class ObstacleMemory:
         """The remembered points relative to a position and their distances from it.
 
         One decision asks for them several times from the same position: they are computed
-        once per set of points and position (every change to the points makes a new array).
+        once per set of points and position. Every change to the points assigns a new
+        ``north_east`` array; writing into it in place would leave these stale.
 
         Args:
             north_east_m: The position.
@@ -135,14 +136,14 @@ class ObstacleMemory:
             ``(offsets, ranges_m)``: (N, 2) north and east, and (N,) distances; read-only.
         """
         at = (float(north_east_m[0]), float(north_east_m[1]))
-        cached = self._near
-        if cached is not None and cached[0] is self.north_east and cached[1] == at:
+        points, cached = self.north_east, self._near
+        if cached is not None and cached[0] is points and cached[1] == at:
             return cached[2], cached[3]
-        offsets = self.north_east - np.asarray(at, dtype=np.float64)
+        offsets = points - np.asarray(at, dtype=np.float64)
         ranges_m = np.hypot(offsets[:, 0], offsets[:, 1])
         offsets.flags.writeable = False
         ranges_m.flags.writeable = False
-        self._near = (self.north_east, at, offsets, ranges_m)
+        self._near = (points, at, offsets, ranges_m)
         return offsets, ranges_m
 
 

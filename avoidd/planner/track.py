@@ -19,7 +19,7 @@ from collections.abc import Sequence
 
 import numpy as np
 
-from avoidd.mavlink.track_history import TrackPoint
+from avoidd.types import TrackPoint
 
 TRACK_WINDOW_S = 0.5
 """Positions from this far back are fitted (long enough to average out the estimate's noise,
