@@ -343,9 +343,13 @@ async def test_a_stalled_matcher_stops_the_watchdog_until_it_recovers(
             return match(*args)
 
         head.pipeline.match = stalled
+        # (A loaded machine may have said STUCK once at start, before the first result.)
+        stalled_at = len(listener.messages)
         try:
-            assert await wait_for(lambda: listener.index("STATUS", "STUCK front") is not None, 10)
-            marks["stuck"] = listener.index("STATUS", "STUCK front") or 0
+            assert await wait_for(
+                lambda: listener.index("STATUS", "STUCK front", stalled_at) is not None, 10
+            )
+            marks["stuck"] = listener.index("STATUS", "STUCK front", stalled_at) or 0
             await asyncio.sleep(1.5)  # three ping periods
             marks["release"] = len(listener.messages)
         finally:
