@@ -16,6 +16,7 @@ from typing import Any, NamedTuple
 import numpy as np
 import numpy.typing as npt
 
+from avoidd.perception.bearing import bearing_rad
 from avoidd.perception.workspace import Workspace
 from avoidd.types import SECTOR_COUNT, BoolArray, FloatArray
 
@@ -116,14 +117,14 @@ def point_cells(
     f32 = np.float32
     kept_or_nan = None
     if kept is not None:
-        # NaN (unmeasured pixels) slows arctan2 by half: it becomes a finite number here (a
+        # NaN (unmeasured pixels) has no bearing: it becomes a finite number here (a
         # masked copy would cost more on a scattered mask). Unkept entries turn NaN again
         # below by one product with 1 (kept) or NaN (not).
         np.fmax(forward_m, f32(-1e30), out=forward_m)
         np.fmax(right_m, f32(-1e30), out=right_m)
         kept_or_nan = one_or_nan(kept, ws.array("kept_or_nan", count, f32))
     per_radian = f32(SECTOR_COUNT * FINE_PER_BIN / (2.0 * math.pi))
-    turns = np.arctan2(right_m, forward_m, out=ws.array("turns", count, f32))
+    turns = bearing_rad(right_m, forward_m, ws.array("turns", count, f32), ws)
     turns *= per_radian
     turns += f32((SECTOR_COUNT + 0.5 - _FIRST_TURN) * FINE_PER_BIN)
     degree = np.multiply(turns, f32(1.0 / FINE_PER_DEGREE), out=ws.array("degree", count, f32))
