@@ -12,7 +12,7 @@ from avoidd.config import AvoidanceConfig, MavlinkConfig
 from avoidd.mavlink import codec as mav
 from avoidd.mavlink.link import MavLink
 from avoidd.mavlink.vehicle import Vehicle
-from avoidd.planner.core import Goal, Planner, Pose
+from avoidd.planner.core import Goal, Planner, Pose, drift_speed_limit_m_s
 from avoidd.planner.track import track_velocity_ne
 from avoidd.types import TrackPoint
 
@@ -162,6 +162,28 @@ def test_a_planner_drifting_along_a_wall_commands_away_from_it() -> None:
     lean = drifting.velocity_ned[0] - agreeing.velocity_ned[0]
     assert lean == pytest.approx(-0.4, abs=0.05)
     assert math.hypot(*drifting.velocity_ned[:2]) <= 2.0 + 1e-9
+
+
+def test_drifting_toward_a_wall_slows_the_vehicle_along_it() -> None:
+    goal = Goal(0.0, 30.0, 2.0)
+    agreeing = _planner_by_a_wall(2.0).decide(S, _pose((0.0, 1.5)), goal, fresh=True)
+    drifting = _planner_by_a_wall(2.0).decide(S, _pose((0.5, 1.5)), goal, fresh=True)
+    # Along the wall (east): the full 2 m/s without drift; with 0.4 m/s of drift asked back,
+    # 2 * (1 - 0.5 * 0.4 / 0.75).
+    assert agreeing.velocity_ned[1] == pytest.approx(2.0, abs=1e-6)
+    assert drifting.velocity_ned[1] == pytest.approx(2.0 * (1.0 - 0.5 * 0.4 / 0.75), abs=0.01)
+    # The same drift with no wall near: nothing to drift into, no slowing.
+    open_planner = _planner_by_a_wall(20.0)
+    free = open_planner.decide(S, _pose((0.5, 1.5)), goal, fresh=True)
+    assert free.velocity_ned[1] == pytest.approx(2.0, abs=1e-6)
+
+
+def test_the_drift_speed_limit_falls_with_the_drift_to_a_floor() -> None:
+    assert drift_speed_limit_m_s(0.0, 2.0) == 2.0
+    limits = [drift_speed_limit_m_s(d, 2.0) for d in np.linspace(0.0, 3.0, 61)]
+    assert bool(np.all(np.diff(limits) <= 0.0))
+    assert min(limits) == pytest.approx(1.0)  # half the maximum speed at most
+    assert drift_speed_limit_m_s(0.75, 1.2) == pytest.approx(0.6)
 
 
 def test_the_vehicle_keeps_the_reported_positions_for_the_track() -> None:

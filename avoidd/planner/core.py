@@ -100,6 +100,11 @@ the clearance."""
 _DRIFT_SLACK_M_S = 0.1
 """Disagreement between the track and the reported velocity up to this is noise (see
 :meth:`Planner.drift_back_m_s`)."""
+_DRIFT_SLOWING = 0.5
+"""While the positions drift toward a near obstacle, the speed falls by this share of the
+maximum speed per :data:`_BACK_AWAY_MAX_M_S` of drift (see :func:`drift_speed_limit_m_s`)."""
+_DRIFT_SLOWEST = 0.5
+"""The drift never slows the vehicle below this share of its maximum speed."""
 _LOOK_ASIDE_RAD = math.radians(90.0)
 """When the way chosen is this far from the best way were unseen ground free (the vehicle is
 about to turn away from it), the cameras look at the first unseen part of that best way."""
@@ -566,11 +571,13 @@ class Planner:
         else:
             self._back_since_ns = None
         self._previous_rad = chosen
+        drifting = self.drift_back_m_s(pose)
         speed = min(
             config.max_speed_m_s,
             stopping_speed_m_s(chosen_free, config.max_accel_m_s2, self._latency_s(now_ns)),
             math.sqrt(2.0 * config.max_accel_m_s2 * goal_m),
             slow_for,
+            drift_speed_limit_m_s(math.hypot(*drifting), config.max_speed_m_s),
         )
         # The camera looks where the vehicle goes, or, when the way to the goal is only
         # blocked by what has not been seen, that way first.
@@ -587,7 +594,6 @@ class Planner:
         speed *= 0.5 + 0.5 * max(0.0, math.cos(off_rad))
         yaw_rate = self._yaw_rate(float(wrap_rad(look - pose.yaw_rad)))
         backing = self.back_away_m_s(pose)
-        drifting = self.drift_back_m_s(pose)
         away = (backing[0] + drifting[0], backing[1] + drifting[1])
         north, east = _with_back_away(
             (speed * math.cos(chosen), speed * math.sin(chosen)), away, config.max_speed_m_s
@@ -756,6 +762,28 @@ class Planner:
         rate = math.radians(self.config.max_yaw_rate_deg_s)
         yaw_rate = max(-rate, min(rate, _YAW_GAIN * (target - self._turned_rad)))
         return Decision((0.0, 0.0, 0.0), yaw_rate, "dead end", goal_distance_m=goal_m)
+
+
+def drift_speed_limit_m_s(drift_m_s: float, max_speed_m_s: float) -> float:
+    """The speed a vehicle whose positions drift toward a near obstacle flies at, at most.
+
+    An autopilot's velocity estimate can disagree with how its positions move (PX4 SITL under
+    CPU load: 0.2-0.8 m/s toward a wall flown along at 1.6 m/s, while it reported flying
+    away), and it follows a sideways setpoint slowly at speed. :meth:`Planner.drift_back_m_s`
+    asks the drift back; flying slower along the obstacle meanwhile leaves the correction
+    more time before the clearance is used up, and a disagreement that grows with speed
+    shrinks with it. The limit falls by :data:`_DRIFT_SLOWING` of the maximum speed per
+    :data:`_BACK_AWAY_MAX_M_S` of drift, to :data:`_DRIFT_SLOWEST` of it at most.
+
+    Args:
+        drift_m_s: The drift toward the obstacle being asked back (0: none).
+        max_speed_m_s: The configured maximum speed.
+
+    Returns:
+        The speed limit (the maximum speed without drift).
+    """
+    share = 1.0 - _DRIFT_SLOWING * drift_m_s / _BACK_AWAY_MAX_M_S
+    return max_speed_m_s * max(_DRIFT_SLOWEST, min(1.0, share))
 
 
 def brake_overspeed(
