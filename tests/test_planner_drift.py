@@ -186,6 +186,27 @@ def test_the_drift_speed_limit_falls_with_the_drift_to_a_floor() -> None:
     assert drift_speed_limit_m_s(0.75, 1.2) == pytest.approx(0.6)
 
 
+def test_holds_ask_a_drift_toward_a_near_wall_back() -> None:
+    # Held on stale frames, dead-ended or stuck, the positions closing on the wall at 0.5
+    # m/s while the autopilot reports standing still: 0.4 m/s asked south, nothing east.
+    still = _pose((0.5, 0.0), reported=(0.0, 0.0))
+    goal = Goal(0.0, 30.0, 2.0)
+    stale = _planner_by_a_wall(2.0).decide(S, still, goal, fresh=False)
+    assert stale.state == "stale"
+    assert stale.velocity_ned[:2] == pytest.approx((-0.4, 0.0), abs=1e-6)
+    assert _planner_by_a_wall(2.0).hold("stale", 30.0, still).velocity_ned[:2] == (
+        pytest.approx((-0.4, 0.0), abs=1e-6)
+    )
+    # No pose (no position heard) or no disagreement: a plain zero.
+    assert _planner_by_a_wall(2.0).hold("no position").velocity_ned == (0.0, 0.0, 0.0)
+    agreeing = _pose((0.0, 0.0), reported=(0.0, 0.0))
+    assert _planner_by_a_wall(2.0).hold("stale", 30.0, agreeing).holding
+    # At the goal, beside the wall: the same correction.
+    arrived = _planner_by_a_wall(2.0).decide(S, still, Goal(0.0, 0.5, 2.0), fresh=True)
+    assert arrived.state == "arrived"
+    assert arrived.velocity_ned[:2] == pytest.approx((-0.4, 0.0), abs=1e-6)
+
+
 def test_the_vehicle_keeps_the_reported_positions_for_the_track() -> None:
     config = MavlinkConfig(connection="udpout:127.0.0.1:9")
     link = MavLink(config.link, mav.Codec(1, 196))

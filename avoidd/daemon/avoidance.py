@@ -198,7 +198,7 @@ class AvoidanceLoop:
             why = "prestream" if verdict is Gate.PRESTREAM else "stale"
             if verdict is Gate.HOLD and pose is None:
                 why = "no position"
-            decision = self.planner.hold(why)
+            decision = self.planner.hold(why, pose=pose if verdict is Gate.HOLD else None)
         self.last_decision = decision
         self._transition(decision.state)
         if decision.state == "arrived" and self.goal_source == "mission" and not self._mission_done:

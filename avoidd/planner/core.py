@@ -303,9 +303,19 @@ class Planner:
             where, pose_at_capture.yaw_rad, distance_m, t_capture_ns, self.max_range_m
         )
 
-    def hold(self, state: str, goal_distance_m: float | None = None) -> Decision:
-        """Stay here: zero velocity, no turning (not a decision: planning is paused)."""
-        return Decision((0.0, 0.0, 0.0), 0.0, state, goal_distance_m=goal_distance_m)
+    def hold(
+        self, state: str, goal_distance_m: float | None = None, pose: Pose | None = None
+    ) -> Decision:
+        """Stay here: no turning, and zero velocity (not a decision: planning is paused).
+
+        With the vehicle's ``pose``, "here" is where its positions are: a drift of those
+        toward a near remembered obstacle that its reported velocity does not show is asked
+        back (:meth:`drift_back_m_s`), as on the move. Told to hold zero, PX4 SITL under CPU
+        load let its positions close on a wall at 0.3-0.4 m/s for five seconds, reporting
+        about zero, and ran into it while avoidd held on stale frames.
+        """
+        north, east = (0.0, 0.0) if pose is None else self.drift_back_m_s(pose)
+        return Decision((north, east, 0.0), 0.0, state, goal_distance_m=goal_distance_m)
 
     def obstacle_free_m(
         self, pose: Pose, headings_rad: np.ndarray, buffer_m: float | np.ndarray = 0.0
@@ -386,8 +396,8 @@ class Planner:
         :data:`_DRIFT_SLACK_M_S` of noise, and at most :data:`_BACK_AWAY_MAX_M_S`) is asked
         the other way: the autopilot flies that much away in its own frame, which leaves the
         positions where the plan wants them. It is added to the back-away (the plan gives way
-        to both within the maximum speed) and never points toward what is near. Holds
-        (arrived, dead end, stale) send zero velocity and carry no such correction.
+        to both within the maximum speed) and never points toward what is near. Holds with
+        a known pose (arrived, dead end, stale, no path) send this alone.
 
         Args:
             pose: The vehicle's state: its reported and track velocity.
@@ -459,14 +469,15 @@ class Planner:
         climb = _ALTITUDE_GAIN * (goal.altitude_m + pose.down_m)
         vertical = -max(-config.climb_rate_m_s, min(config.climb_rate_m_s, climb))
         if not fresh:
-            return self.hold("stale", goal_m)
+            return self.hold("stale", goal_m, pose)
         if goal_m <= config.acceptance_radius_m:
             self._best_since_ns = None
             self._dead_end_since_ns = None
             state = "arrived" if abs(climb) <= _ARRIVED_ALTITUDE_M else "moving"
-            return Decision((0.0, 0.0, vertical), 0.0, state, goal_distance_m=goal_m)
+            north, east = self.drift_back_m_s(pose)
+            return Decision((north, east, vertical), 0.0, state, goal_distance_m=goal_m)
         if self._no_progress(now_ns, goal_m):
-            return self.hold("no path", goal_m)
+            return self.hold("no path", goal_m, pose)
         goal_rad = math.atan2(to_east, to_north)
         # Directions are chosen with room to spare for the turn the vehicle takes to follow
         # them (it lags its setpoint by a few tenths of a second): more at speed.
@@ -514,7 +525,7 @@ class Planner:
         self._goal_bearing_rad = goal_rad
         if abs(self._circled_rad) >= 2.0 * math.pi:
             self._given_up = True
-            return self.hold("no path", goal_m)
+            return self.hold("no path", goal_m, pose)
         if goal_open:
             self._side = 0
             self._side_changes = 0
@@ -755,13 +766,14 @@ class Planner:
         self._last_yaw_rad = pose.yaw_rad
         elapsed_s = (now_ns - self._dead_end_since_ns) / 1e9
         if elapsed_s >= self.config.dead_end_scan_s:
-            return self.hold("no path", goal_m)
+            return self.hold("no path", goal_m, pose)
         # The first half turning toward the goal side up to 180 degrees, then the other way.
         first = elapsed_s < self.config.dead_end_scan_s / 2.0
         target = math.pi * self._scan_side * (1.0 if first else -1.0)
         rate = math.radians(self.config.max_yaw_rate_deg_s)
         yaw_rate = max(-rate, min(rate, _YAW_GAIN * (target - self._turned_rad)))
-        return Decision((0.0, 0.0, 0.0), yaw_rate, "dead end", goal_distance_m=goal_m)
+        north, east = self.drift_back_m_s(pose)
+        return Decision((north, east, 0.0), yaw_rate, "dead end", goal_distance_m=goal_m)
 
 
 def drift_speed_limit_m_s(drift_m_s: float, max_speed_m_s: float) -> float:
