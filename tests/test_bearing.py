@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import math
+import warnings
 
 import numpy as np
 import pytest
@@ -74,3 +75,14 @@ def test_writes_into_out_and_takes_strided_rows() -> None:
     points = np.ascontiguousarray(level.T)
     again = bearing_rad(points[:, 1], points[:, 0], np.empty(4000, np.float32), Workspace())
     assert np.array_equal(again, out)
+
+
+def test_infinite_and_nan_coordinates_give_nan_without_a_warning() -> None:
+    # grid.py passes every pixel; a far reading it does not keep has an infinite coordinate.
+    y = np.array([np.inf, 1.0, -np.inf, np.nan, 1.0], np.float32)
+    x = np.array([np.inf, -np.inf, 3.0, 1.0, 2.0], np.float32)
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        got = bearing_rad(y, x, np.empty(5, np.float32), Workspace())
+    assert np.isnan(got[:4]).all()
+    assert float(got[4]) == pytest.approx(math.atan2(1.0, 2.0), abs=1e-6)

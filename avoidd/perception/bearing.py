@@ -30,14 +30,15 @@ def bearing_rad(y: FloatArray, x: FloatArray, out: FloatArray, workspace: Worksp
     """``arctan2(y, x)`` of float32 points, within 1e-6 rad of the exact angle.
 
     Args:
-        y: (N,) float32 second coordinates (level-frame right), finite.
-        x: (N,) float32 first coordinates (level-frame forward), finite.
+        y: (N,) float32 second coordinates (level-frame right).
+        x: (N,) float32 first coordinates (level-frame forward).
         out: (N,) float32 array the angles go into.
         workspace: Where the temporaries live.
 
     Returns:
         ``out``, holding angles in [-pi, pi] (pi and -pi are the same direction; which one a
-        point exactly behind gets may differ from NumPy's), 0 where both coordinates are 0.
+        point exactly behind gets may differ from NumPy's), 0 where both coordinates are 0,
+        NaN where one is infinite or NaN (no warning).
     """
     y = np.ascontiguousarray(y, dtype=np.float32).ravel()
     x = np.ascontiguousarray(x, dtype=np.float32).ravel()
@@ -53,14 +54,16 @@ def bearing_rad(y: FloatArray, x: FloatArray, out: FloatArray, workspace: Worksp
     cos, sin = cos.ravel(), sin.ravel()
     across = workspace.array("bearing_across", count, np.float32)
     scratch = workspace.array("bearing_scratch", count, np.float32)
-    # Across the estimate's direction (y cos - x sin) and along it (x cos + y sin).
-    np.multiply(y, cos, out=across)
-    across -= np.multiply(x, sin, out=scratch)
-    along = np.multiply(x, cos, out=cos)
-    along += np.multiply(y, sin, out=sin)
-    # Along is the points' distance times cos(error): positive but at the origin.
-    np.maximum(along, _TINY, out=along)
-    across /= along
+    # Across the estimate's direction (y cos - x sin) and along it (x cos + y sin). An
+    # infinite coordinate (a far reading the caller does not keep) ends NaN, quietly.
+    with np.errstate(invalid="ignore", over="ignore"):
+        np.multiply(y, cos, out=across)
+        across -= np.multiply(x, sin, out=scratch)
+        along = np.multiply(x, cos, out=cos)
+        along += np.multiply(y, sin, out=sin)
+        # Along is the points' distance times cos(error): positive but at the origin.
+        np.maximum(along, _TINY, out=along)
+        across /= along
     flat += across
     # Into (-pi, pi]: the angles above pi (to the left) come down by a turn.
     np.greater(flat, _PI, out=scratch)
