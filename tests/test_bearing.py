@@ -86,3 +86,13 @@ def test_infinite_and_nan_coordinates_give_nan_without_a_warning() -> None:
         got = bearing_rad(y, x, np.empty(5, np.float32), Workspace())
     assert np.isnan(got[:4]).all()
     assert float(got[4]) == pytest.approx(math.atan2(1.0, 2.0), abs=1e-6)
+
+
+def test_no_points_and_an_unfit_out() -> None:
+    empty = np.empty(0, np.float32)
+    assert bearing_rad(empty, empty, np.empty(0, np.float32), Workspace()).size == 0
+    points = np.ones(4, np.float32)
+    with pytest.raises(ValueError, match="float32"):
+        bearing_rad(points, points, np.empty(4, np.float64), Workspace())
+    with pytest.raises(ValueError, match="1-D"):
+        bearing_rad(points, points, np.empty((2, 4), np.float32)[:, 0], Workspace())

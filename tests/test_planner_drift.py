@@ -12,7 +12,13 @@ from avoidd.config import AvoidanceConfig, MavlinkConfig
 from avoidd.mavlink import codec as mav
 from avoidd.mavlink.link import MavLink
 from avoidd.mavlink.vehicle import Vehicle
-from avoidd.planner.core import Goal, Planner, Pose, drift_speed_limit_m_s
+from avoidd.planner.core import (
+    Goal,
+    Planner,
+    Pose,
+    drift_speed_limit_m_s,
+    stopping_speed_m_s,
+)
 from avoidd.planner.track import track_velocity_ne
 from avoidd.types import TrackPoint
 
@@ -205,6 +211,36 @@ def test_holds_ask_a_drift_toward_a_near_wall_back() -> None:
     arrived = _planner_by_a_wall(2.0).decide(S, still, Goal(0.0, 0.5, 2.0), fresh=True)
     assert arrived.state == "arrived"
     assert arrived.velocity_ned[:2] == pytest.approx((-0.4, 0.0), abs=1e-6)
+
+
+def test_a_hold_asks_no_drift_back_for_a_jump_nor_beyond_a_stop_or_the_maximum_speed() -> None:
+    planner = _planner_by_a_wall(2.0)
+    # 5 m/s of disagreement is a position reset fitted as a speed: nothing is sent for it.
+    assert planner.hold("stale", 30.0, _pose((5.0, 0.0), reported=(0.0, 0.0))).holding
+    # A maximum speed below the correction bounds it.
+    slow = Planner(
+        AvoidanceConfig.model_validate({"enabled": True, "max_speed_m_s": 0.3, "unknown": "free"}),
+        20.0,
+    )
+    slow.memory.north_east = planner.memory.north_east.copy()
+    slow.memory.t_ns = planner.memory.t_ns.copy()
+    held = slow.hold("stale", 30.0, _pose((0.5, 0.0), reported=(0.0, 0.0)))
+    assert held.velocity_ned[:2] == pytest.approx((-0.3, 0.0), abs=1e-6)
+    # Something behind (beyond the drift band: the wall ahead stays one-sided) and frames
+    # 3 s old: no faster than a stop short of it within the speed law's longer delay.
+    behind = _planner_by_a_wall(2.0)
+    east = np.arange(-3.0, 3.01, 0.1)
+    wall_south = np.stack([np.full(east.size, -(behind.clearance_m + 1.2)), east], axis=1)
+    behind.memory.north_east = np.concatenate([behind.memory.north_east, wall_south])
+    behind.memory.t_ns = np.full(behind.memory.north_east.shape[0], 3 * S, dtype=np.int64)
+    behind._last_scan_ns = 1 * S  # the newest scan was taken 3 s before the hold
+    pose = Pose(4 * S, 0.0, 0.0, -2.0, math.pi / 2, 0.0, 0.0, (0.5, 0.0))
+    assert behind.drift_back_m_s(pose) == pytest.approx((-0.4, 0.0), abs=1e-6)  # one-sided
+    free_m = float(behind.free_m(pose, np.array([math.pi]))[0])
+    stop = stopping_speed_m_s(free_m, behind.config.max_accel_m_s2, behind._latency_s(4 * S))
+    assert 0.0 < stop < 0.4
+    held = behind.hold("stale", 30.0, pose)
+    assert held.velocity_ned[:2] == pytest.approx((-stop, 0.0), abs=1e-3)
 
 
 def test_the_vehicle_keeps_the_reported_positions_for_the_track() -> None:

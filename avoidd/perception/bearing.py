@@ -32,25 +32,36 @@ def bearing_rad(y: FloatArray, x: FloatArray, out: FloatArray, workspace: Worksp
     Args:
         y: (N,) float32 second coordinates (level-frame right).
         x: (N,) float32 first coordinates (level-frame forward).
-        out: (N,) float32 array the angles go into.
+        out: (N,) contiguous float32 array the angles go into.
         workspace: Where the temporaries live.
 
     Returns:
         ``out``, holding angles in [-pi, pi] (pi and -pi are the same direction; which one a
         point exactly behind gets may differ from NumPy's), 0 where both coordinates are 0,
         NaN where one is infinite or NaN (no warning).
+
+    Raises:
+        ValueError: ``out`` is not a contiguous 1-D float32 array.
     """
+    if out.dtype != np.float32 or out.ndim != 1 or not out.flags.c_contiguous:
+        raise ValueError("bearing_rad writes into a contiguous 1-D float32 array")
     y = np.ascontiguousarray(y, dtype=np.float32).ravel()
     x = np.ascontiguousarray(x, dtype=np.float32).ravel()
     count = x.size
-    flat = out.reshape(-1)
-    # OpenCV takes a 1-D array as a column: give it (N, 1) views so nothing is reallocated.
+    flat = out
+    if count == 0:
+        return out
+    # OpenCV takes a 1-D array as a column: give it (N, 1) views so nothing is reallocated
+    # (and take its result wherever it put it).
     estimate = cv2.phase(x[:, None], y[:, None], angle=flat[:, None])  # [0, 2 pi)
     if not np.shares_memory(estimate, flat):
         flat[...] = estimate.ravel()
     cos = workspace.array("bearing_cos", (count, 1), np.float32)
     sin = workspace.array("bearing_sin", (count, 1), np.float32)
-    cv2.polarToCart(None, flat[:, None], x=cos, y=sin)  # type: ignore[call-overload]
+    got = cv2.polarToCart(None, flat[:, None], x=cos, y=sin)  # type: ignore[call-overload]
+    if not np.shares_memory(got[0], cos):
+        cos[...] = np.asarray(got[0]).reshape(count, 1)
+        sin[...] = np.asarray(got[1]).reshape(count, 1)
     cos, sin = cos.ravel(), sin.ravel()
     across = workspace.array("bearing_across", count, np.float32)
     scratch = workspace.array("bearing_scratch", count, np.float32)

@@ -100,6 +100,9 @@ the clearance."""
 _DRIFT_SLACK_M_S = 0.1
 """Disagreement between the track and the reported velocity up to this is noise (see
 :meth:`Planner.drift_back_m_s`)."""
+_DRIFT_JUMP_M_S = 1.5
+"""A disagreement between the track and the reported velocity beyond this is a position reset
+(a jump fitted as a speed), not a drift: a hold sends nothing for it."""
 _DRIFT_SLOWING = 0.5
 """While the positions drift toward a near obstacle, the speed falls by this share of the
 maximum speed per :data:`_BACK_AWAY_MAX_M_S` of drift (see :func:`drift_speed_limit_m_s`)."""
@@ -171,7 +174,10 @@ class Decision:
 
     @property
     def holding(self) -> bool:
-        """Whether the vehicle is to stay where it is (horizontally)."""
+        """Whether the setpoint asks for no horizontal motion.
+
+        A hold that asks a drift back asks for some: its state says that it holds.
+        """
         return self.velocity_ned[0] == 0.0 and self.velocity_ned[1] == 0.0
 
 
@@ -314,8 +320,35 @@ class Planner:
         load let its positions close on a wall at 0.3-0.4 m/s for five seconds, reporting
         about zero, and ran into it while avoidd held on stale frames.
         """
-        north, east = (0.0, 0.0) if pose is None else self.drift_back_m_s(pose)
+        north, east = (0.0, 0.0) if pose is None else self._held_drift_m_s(pose)
         return Decision((north, east, 0.0), 0.0, state, goal_distance_m=goal_distance_m)
+
+    def _held_drift_m_s(self, pose: Pose) -> tuple[float, float]:
+        """The drift correction a hold sends: :meth:`drift_back_m_s`, within what is known.
+
+        A hold plans nothing, so the correction is checked here: none for a disagreement
+        beyond :data:`_DRIFT_JUMP_M_S` (a position reset), and no faster than the maximum
+        speed or than a stop within the free distance that way (the speed law's, with the
+        scan's age in its delay: stale frames slow it further).
+        """
+        self.memory.expire(pose.t_ns)
+        track = pose.track_ne_m_s
+        if track is None:
+            return (0.0, 0.0)
+        if math.hypot(track[0] - pose.north_m_s, track[1] - pose.east_m_s) > _DRIFT_JUMP_M_S:
+            return (0.0, 0.0)
+        north, east = self.drift_back_m_s(pose)
+        speed = math.hypot(north, east)
+        if speed == 0.0:
+            return (0.0, 0.0)
+        free_m = float(self.free_m(pose, np.array([math.atan2(east, north)]))[0])
+        limit = min(
+            self.config.max_speed_m_s,
+            stopping_speed_m_s(free_m, self.config.max_accel_m_s2, self._latency_s(pose.t_ns)),
+        )
+        if speed <= limit:
+            return (north, east)
+        return (north * limit / speed, east * limit / speed)
 
     def obstacle_free_m(
         self, pose: Pose, headings_rad: np.ndarray, buffer_m: float | np.ndarray = 0.0
@@ -474,7 +507,7 @@ class Planner:
             self._best_since_ns = None
             self._dead_end_since_ns = None
             state = "arrived" if abs(climb) <= _ARRIVED_ALTITUDE_M else "moving"
-            north, east = self.drift_back_m_s(pose)
+            north, east = self._held_drift_m_s(pose)
             return Decision((north, east, vertical), 0.0, state, goal_distance_m=goal_m)
         if self._no_progress(now_ns, goal_m):
             return self.hold("no path", goal_m, pose)
@@ -772,7 +805,7 @@ class Planner:
         target = math.pi * self._scan_side * (1.0 if first else -1.0)
         rate = math.radians(self.config.max_yaw_rate_deg_s)
         yaw_rate = max(-rate, min(rate, _YAW_GAIN * (target - self._turned_rad)))
-        north, east = self.drift_back_m_s(pose)
+        north, east = self._held_drift_m_s(pose)
         return Decision((north, east, 0.0), yaw_rate, "dead end", goal_distance_m=goal_m)
 
 

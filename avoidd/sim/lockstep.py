@@ -246,8 +246,8 @@ class LockstepRun:
                     last_side = side
                 if gate_now is Gate.HOLD:
                     summary.stale_holds += 1
-                    if stale_since_ns is not None and decision.holding:
-                        # Stale perception to a zero-velocity setpoint (the worst of the run).
+                    if stale_since_ns is not None and decision.state == "stale":
+                        # Stale perception to a hold setpoint (the worst of the run).
                         waited_ms = (now_ns - stale_since_ns) / 1e6
                         summary.stale_to_hold_ms = max(summary.stale_to_hold_ms or 0.0, waited_ms)
                         stale_since_ns = None
@@ -320,7 +320,10 @@ class LockstepRun:
         if verdict is Gate.SILENT or self.goal is None:
             return verdict, Decision((0.0, 0.0, 0.0), 0.0, "silent"), None
         if verdict in (Gate.PRESTREAM, Gate.HOLD):
-            decision = self.planner.hold("stale" if verdict is Gate.HOLD else "prestream")
+            if verdict is Gate.HOLD:
+                decision = self.planner.hold("stale", pose=pose)  # as the daemon holds
+            else:
+                decision = self.planner.hold("prestream")
         else:
             decision = self.planner.decide(now_ns, pose, self.goal, fresh=True)
         self.autopilot.setpoint(np.array(decision.velocity_ned), decision.yaw_rate_rad_s, now_ns)
