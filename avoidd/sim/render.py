@@ -19,6 +19,7 @@ from __future__ import annotations
 
 import functools
 import math
+from collections.abc import Callable
 from dataclasses import dataclass
 from typing import Any
 
@@ -31,6 +32,7 @@ from avoidd.sim.world import SimBox, SimCylinder, World
 from avoidd.types import FloatArray, GroundTruth, Image, Mount, RectifiedRig
 
 AnyFloat = npt.NDArray[np.floating[Any]]
+AnyArray = npt.NDArray[Any]
 
 SKY_ID = 0
 GROUND_ID = 1
@@ -80,12 +82,12 @@ def texture_pyramid() -> tuple[npt.NDArray[np.float32], ...]:
 
 @dataclass(frozen=True)
 class _SurfaceTable:
-    """Per surface id: offset of its texture (texels), albedo, whether textured."""
+    """Per surface id: offset of its texture (texels), albedo, 1 where untextured (flat)."""
 
     offset_x: npt.NDArray[np.float32]
     offset_y: npt.NDArray[np.float32]
     albedo: npt.NDArray[np.float32]
-    textured: npt.NDArray[np.bool_]
+    flat: npt.NDArray[np.uint8]
 
 
 class RenderedStereo:
@@ -146,13 +148,13 @@ class _Hits:
         nearer = t < self.t[window]
         if not nearer.any():
             return
-        self.t[window][nearer] = t[nearer]
-        self.ids[window][nearer] = surface_id
-        self.s[window][nearer] = s[nearer]
-        self.u[window][nearer] = u[nearer]
-        self.cos[window][nearer] = cos[nearer]
-        light_array = np.broadcast_to(np.asarray(light, dtype=np.float32), t.shape)
-        self.light[window][nearer] = light_array[nearer]
+        # copyto with a mask writes in one pass (indexing by the mask would gather first).
+        np.copyto(self.t[window], t, where=nearer)
+        np.copyto(self.ids[window], np.int16(surface_id), where=nearer)
+        np.copyto(self.s[window], s, where=nearer, casting="same_kind")
+        np.copyto(self.u[window], u, where=nearer, casting="same_kind")
+        np.copyto(self.cos[window], cos, where=nearer, casting="same_kind")
+        np.copyto(self.light[window], light, where=nearer, casting="same_kind")
 
 
 def _light(normal_ned: FloatArray) -> FloatArray:
@@ -192,7 +194,7 @@ class StereoRenderer:
             offset_x=rng.uniform(0, _TEXTURE_SIZE, count).astype(np.float32),
             offset_y=rng.uniform(0, _TEXTURE_SIZE, count).astype(np.float32),
             albedo=albedo.astype(np.float32),
-            textured=np.array([False, True, True] + [o.textured for o in world.obstacles]),
+            flat=np.array([1, 0, 0] + [int(not o.textured) for o in world.obstacles], np.uint8),
         )
         # A small bank of noise fields, drawn from per frame (drawing fresh Gaussian noise
         # for every pixel costs as much as rendering).
@@ -296,7 +298,7 @@ class StereoRenderer:
                     inside=False,
                 )
             else:
-                self._box(hits, window, rays[window], centre, obstacle, surface_id)
+                self._box(hits, rays, rotation, centre, obstacle, surface_id)
         return hits
 
     def _treeline_rows(
@@ -339,7 +341,13 @@ class StereoRenderer:
                 for h in (0.0, obstacle.height_m)
             ]
         )
-        optical = (corners - centre) @ rotation  # rows: corners in the camera frame
+        return self._project(corners, rotation, centre)
+
+    def _project(
+        self, corners_ned: FloatArray, rotation: FloatArray, centre: FloatArray
+    ) -> tuple[slice, slice] | None:
+        """The screen rectangle round points (N x 3, NED) that bound a shape (None: unseen)."""
+        optical = (corners_ned - centre) @ rotation  # rows: points in the camera frame
         z = optical[:, 2]
         rig = self.rig
         if (z <= _NEAR_M).all():
@@ -394,69 +402,60 @@ class StereoRenderer:
     def _box(
         self,
         hits: _Hits,
-        window: tuple[slice, slice],
         rays: FloatArray,
+        rotation: FloatArray,
         centre: FloatArray,
         box: SimBox,
         surface_id: int,
     ) -> None:
+        """Offer the faces of a box the camera is outside of, each over its own screen window.
+
+        A ray enters a convex box through a face whose outer side the camera is on, so only
+        those faces (three at most) are intersected: a plane each, then a bounds check in it.
+        A face covers less of the screen than the box, and each pixel costs a few operations
+        per face rather than a slab test on all three axes. Faces are offered along the
+        length, across, then top and bottom; a pixel on an edge keeps the first.
+        """
         co, si = math.cos(box.yaw_rad), math.sin(box.yaw_rad)
         on, oe, od = float(centre[0]) - box.north_m, float(centre[1]) - box.east_m, float(centre[2])
-        # Into the box frame: along its length, across it, down.
+        # The camera in the box frame: along its length (a), across it (c), down (d).
         pa, pc = on * co + oe * si, -on * si + oe * co
-        ra = rays[..., 0] * co + rays[..., 1] * si
-        rc = -rays[..., 0] * si + rays[..., 1] * co
-        rd = rays[..., 2]
-        slabs = (
-            (pa, ra, box.half_length_m, -box.half_length_m),
-            (pc, rc, box.half_width_m, -box.half_width_m),
-            (od, rd, 0.0, -box.height_m),
-        )
-        t_in = np.full(ra.shape, -np.inf, dtype=np.float32)
-        t_out = np.full(ra.shape, np.inf, dtype=np.float32)
-        face = np.zeros(ra.shape, dtype=np.int8)
-        for axis, (p, r, high, low) in enumerate(slabs):
-            with np.errstate(divide="ignore", invalid="ignore"):
-                t0 = (low - p) / r
-                t1 = (high - p) / r
-            near = np.minimum(t0, t1)
-            far = np.maximum(t0, t1)
-            # A ray parallel to the slab is inside it for every t, or for none.
-            near = np.where(r == 0, -np.inf if low <= p <= high else np.inf, near)
-            far = np.where(r == 0, np.inf if low <= p <= high else -np.inf, far)
-            entering = near > t_in
-            face = np.where(entering, axis, face).astype(np.int8)
-            t_in = np.maximum(t_in, near)
-            t_out = np.minimum(t_out, far)
-        hit = (t_in <= t_out) & (t_in > _NEAR_M)
-        t = np.where(hit, t_in, np.inf).astype(np.float32)
-        with np.errstate(invalid="ignore"):  # inf * 0 where nothing is hit (not kept)
-            a = pa + t * ra
-            c = pc + t * rc
-            d = od + t * rd
-        length = np.sqrt(ra * ra + rc * rc + rd * rd)
-        s = np.where(face == 0, c, a)
-        u = np.where(face == 2, c, d)
-        r_face = np.where(face == 0, ra, np.where(face == 1, rc, rd))
-        cos = np.abs(r_face) / length
-        # Outward normals of the faces the rays can enter (the bottom lies on the ground).
-        sign_a = np.sign(-ra)
-        sign_c = np.sign(-rc)
-        normals = np.array(
-            [
-                _light(np.array([co, si, 0.0])),
-                _light(np.array([-co, -si, 0.0])),
-                _light(np.array([-si, co, 0.0])),
-                _light(np.array([si, -co, 0.0])),
-                _light(np.array([0.0, 0.0, -1.0])),
-            ]
-        )
-        light = np.where(
-            face == 0,
-            np.where(sign_a > 0, normals[0], normals[1]),
-            np.where(face == 1, np.where(sign_c > 0, normals[2], normals[3]), normals[4]),
-        )
-        hits.offer(window, t, surface_id, s, u, cos, light)
+        half_a, half_c, height = box.half_length_m, box.half_width_m, box.height_m
+        for axis, plane, normal_ned in _facing_box_faces(pa, pc, od, box):
+            corners = _face_corners_ned(box, axis, plane)
+            window = self._project(corners, rotation, centre)
+            if window is None:
+                continue
+            part = rays[window]
+            rn, re, rd = part[..., 0], part[..., 1], part[..., 2]
+            ra = rn * np.float32(co) + re * np.float32(si)
+            rc = re * np.float32(co) - rn * np.float32(si)
+            t: AnyFloat
+            s: AnyFloat
+            u: AnyFloat
+            toward: AnyFloat
+            with np.errstate(divide="ignore", invalid="ignore", over="ignore"):
+                if axis == 0:
+                    t = (plane - pa) / ra
+                    s = pc + t * rc
+                    u = od + t * rd
+                    inside = (np.abs(s) <= half_c) & (u <= 0.0) & (u >= -height)
+                    toward = ra
+                elif axis == 1:
+                    t = (plane - pc) / rc
+                    s = pa + t * ra
+                    u = od + t * rd
+                    inside = (np.abs(s) <= half_a) & (u <= 0.0) & (u >= -height)
+                    toward = rc
+                else:
+                    t = (plane - od) / rd
+                    s = pa + t * ra
+                    u = pc + t * rc
+                    inside = (np.abs(s) <= half_a) & (np.abs(u) <= half_c)
+                    toward = rd
+                t = np.where(inside & (t > _NEAR_M), t, np.inf).astype(np.float32)
+            cos = np.abs(toward) / self._ray_length[window]
+            hits.offer(window, t, surface_id, s, u, cos, float(_light(normal_ned)))
 
     # --- shading ---------------------------------------------------------------------------
 
@@ -464,6 +463,7 @@ class StereoRenderer:
         self, hits: _Hits, rays: FloatArray, ray_length: FloatArray, noise: FloatArray | None
     ) -> Image:
         ids = hits.ids
+        gather = self._gatherer(ids)
         surfaces = self._surface_table
         # Every pixel is computed as if textured (sky and flat ones are overwritten after):
         # whole-image arithmetic is cheaper than selecting the pixels first.
@@ -473,18 +473,36 @@ class StereoRenderer:
             footprint_texels /= np.sqrt(np.maximum(hits.cos, np.float32(0.02)))
         top = np.float32(len(self._levels) - 1.001)
         lod = np.log2(np.clip(footprint_texels, 1.0, 2.0**top))
-        x = _wrap(hits.s * np.float32(1.0 / TEXEL_M) + surfaces.offset_x[ids])
-        y = _wrap(hits.u * np.float32(1.0 / TEXEL_M) + surfaces.offset_y[ids])
+        x = _wrap(hits.s * np.float32(1.0 / TEXEL_M) + gather(surfaces.offset_x))
+        y = _wrap(hits.u * np.float32(1.0 / TEXEL_M) + gather(surfaces.offset_y))
         pattern = self._sample(x, y, lod)
-        value = surfaces.albedo[ids] * hits.light * (0.35 + 1.3 * pattern)
-        flat = ~surfaces.textured[ids]
-        value = np.where(flat, 0.8 * surfaces.albedo[ids] * hits.light, value)
+        lit = gather(surfaces.albedo) * hits.light
+        value = lit * (0.35 + 1.3 * pattern)
+        flat = gather(surfaces.flat) != 0
+        value = np.where(flat, 0.8 * lit, value)
         sky = ids == SKY_ID
         value = np.where(sky, 0.78 - 0.15 * rays[..., 2] / ray_length, value)
         scaled = value * np.float32(255.0)
         if noise is not None:
             scaled += noise
         return np.asarray(np.clip(np.rint(scaled), 0, 255), dtype=np.uint8)
+
+    def _gatherer(self, ids: npt.NDArray[np.int16]) -> Callable[[AnyArray], AnyArray]:
+        """Per-pixel lookup of a per-surface table by the pixels' surface ids.
+
+        With fewer than 256 surfaces the ids fit a byte and OpenCV's table lookup does it (a
+        fraction of NumPy's indexing by an int16 array); otherwise NumPy indexes.
+        """
+        if len(self._surface_table.albedo) > 256:
+            return lambda table: np.asarray(table[ids])
+        small = ids.astype(np.uint8)
+
+        def lookup(table: AnyArray) -> AnyArray:
+            padded = np.zeros(256, dtype=table.dtype)
+            padded[: len(table)] = table
+            return np.asarray(cv2.LUT(small, padded))
+
+        return lookup
 
     def _sample(self, x: FloatArray, y: FloatArray, lod: FloatArray) -> FloatArray:
         """Trilinear lookup of the pattern at texel coordinates (finest level) and a level."""
@@ -528,6 +546,48 @@ class StereoRenderer:
             borderMode=cv2.BORDER_WRAP,
         )
         return np.asarray(sampled, dtype=np.float32).ravel()[:count]
+
+
+def _facing_box_faces(
+    pa: float, pc: float, od: float, box: SimBox
+) -> list[tuple[int, float, FloatArray]]:
+    """The faces of a box whose outer side a point is on (box frame: along, across, down).
+
+    Returns:
+        Per face: its axis (0 along the length, 1 across, 2 down), the plane's coordinate on
+        that axis, and its outward normal in NED (the bottom's lit as the top, as it never
+        shows above the ground).
+    """
+    co, si = math.cos(box.yaw_rad), math.sin(box.yaw_rad)
+    faces: list[tuple[int, float, FloatArray]] = []
+    if pa > box.half_length_m:
+        faces.append((0, box.half_length_m, np.array([co, si, 0.0])))
+    elif pa < -box.half_length_m:
+        faces.append((0, -box.half_length_m, np.array([-co, -si, 0.0])))
+    if pc > box.half_width_m:
+        faces.append((1, box.half_width_m, np.array([-si, co, 0.0])))
+    elif pc < -box.half_width_m:
+        faces.append((1, -box.half_width_m, np.array([si, -co, 0.0])))
+    if od < -box.height_m:
+        faces.append((2, -box.height_m, np.array([0.0, 0.0, -1.0])))
+    elif od > 0.0:
+        faces.append((2, 0.0, np.array([0.0, 0.0, -1.0])))
+    return faces
+
+
+def _face_corners_ned(box: SimBox, axis: int, plane: float) -> FloatArray:
+    """The four corners (NED) of the box face on ``axis`` at ``plane``."""
+    half_a, half_c, height = box.half_length_m, box.half_width_m, box.height_m
+    if axis == 0:
+        local = [(plane, c, d) for c in (-half_c, half_c) for d in (0.0, -height)]
+    elif axis == 1:
+        local = [(a, plane, d) for a in (-half_a, half_a) for d in (0.0, -height)]
+    else:
+        local = [(a, c, plane) for a in (-half_a, half_a) for c in (-half_c, half_c)]
+    co, si = math.cos(box.yaw_rad), math.sin(box.yaw_rad)
+    return np.array(
+        [(box.north_m + a * co - c * si, box.east_m + a * si + c * co, d) for a, c, d in local]
+    )
 
 
 def _wrap(texels: FloatArray) -> FloatArray:
