@@ -3,6 +3,8 @@
 from __future__ import annotations
 
 import math
+import os
+import signal
 import time
 from pathlib import Path
 
@@ -24,6 +26,7 @@ from avoidd.sim.lockstep import RIGS
 from avoidd.sim.mav_autopilot import scan_from_message
 from avoidd.sim.pose_source import PoseRenderedSource, VehiclePose, vehicle_pose
 from avoidd.sim.render import StereoRenderer
+from avoidd.sim.render_process import LocalRenderer, RenderProcess
 from avoidd.sim.world import World
 from avoidd.sources import open_source
 from avoidd.types import Mount
@@ -37,9 +40,9 @@ WALL = {
 }
 
 
-def _renderer() -> StereoRenderer:
+def _renderer(seed: int = 0) -> LocalRenderer:
     world = World.from_config(WorldConfig.model_validate(WALL))
-    return StereoRenderer(world, RIGS["320x240"], Mount())
+    return LocalRenderer(world, RIGS["320x240"], Mount(), seed=seed)
 
 
 def _half_thickness(renderer: StereoRenderer) -> float:
@@ -62,8 +65,9 @@ def test_the_wall_ahead_comes_nearer_as_the_reported_pose_does() -> None:
     poses = iter(
         [VehiclePose(0.0, 0.0, -2.0, 0.0, 0.0, 0.0), VehiclePose(3.0, 0.0, -2.0, 0.0, 0.0, 0.0)]
     )
-    renderer = _renderer()
-    source = PoseRenderedSource(renderer, lambda t_ns: next(poses), fps=50.0, seed=1)
+    local = _renderer(seed=1)
+    renderer = local.renderer
+    source = PoseRenderedSource(local, lambda t_ns: next(poses), fps=50.0)
     first, second = source.read(), source.read()
     assert (first.seq, second.seq) == (0, 1)
     assert second.t_capture_ns > first.t_capture_ns
@@ -91,6 +95,49 @@ def test_without_a_pose_a_frame_is_dropped_not_invented() -> None:
     source = PoseRenderedSource(_renderer(), lambda t_ns: None, fps=50.0, wait_s=0.05)
     with pytest.raises(BrokenFrame, match="no pose from the autopilot"):
         source.read()
+
+
+def test_the_render_process_draws_what_the_local_renderer_does_in_a_session_of_its_own() -> None:
+    world = World.from_config(WorldConfig.model_validate(WALL))
+    local = LocalRenderer(world, RIGS["320x240"], Mount(), seed=4)
+    remote = RenderProcess(world, RIGS["320x240"], Mount(), seed=4)
+    try:
+        for pose in [(0.0, 0.0, -2.0, 0.0, 0.0, 0.0), (2.5, 0.3, -2.2, 0.1, 3.0, -2.0)]:
+            mine, theirs = local.render_pair(pose), remote.render_pair(pose)
+            assert np.array_equal(mine[0], theirs[0]) and np.array_equal(mine[1], theirs[1])
+        pid = remote.pid
+        assert pid is not None
+        # Its own session: the kernel shares the CPU out to it as to another program.
+        assert os.getsid(pid) == pid != os.getsid(0)
+    finally:
+        remote.close()
+    assert not _alive(pid)
+
+
+def test_a_render_process_that_died_is_a_lost_camera_and_a_closed_one_is_gone() -> None:
+    world = World.from_config(WorldConfig.model_validate(WALL))
+    remote = RenderProcess(world, RIGS["320x240"], Mount())
+    try:
+        remote.render_pair((0.0, 0.0, -2.0, 0.0, 0.0, 0.0))
+        pid = remote.pid
+        assert pid is not None
+        os.kill(pid, signal.SIGKILL)
+        with pytest.raises(SourceError, match="renderer stopped"):
+            for _ in range(3):  # the first send may still find the pipe open
+                remote.render_pair((0.0, 0.0, -2.0, 0.0, 0.0, 0.0))
+    finally:
+        remote.close()
+    assert not _alive(pid)
+
+
+def _alive(pid: int) -> bool:
+    try:
+        os.kill(pid, 0)
+    except ProcessLookupError:
+        return False
+    # A zombie not yet reaped counts as gone.
+    with open(f"/proc/{pid}/stat") as stat:
+        return stat.read().split(")")[-1].split()[0] != "Z"
 
 
 def test_the_pose_is_the_autopilots_newest_report_shifted_to_the_world() -> None:

@@ -42,7 +42,7 @@ from avoidd.sim.generators import generate
 from avoidd.sim.lockstep import MAX_RANGE_M, RIGS
 from avoidd.sim.perception import SIM_HEAD
 from avoidd.sim.pose_source import PoseRenderedSource, vehicle_pose
-from avoidd.sim.render import StereoRenderer
+from avoidd.sim.render_process import LentRenderer, RenderProcess
 from avoidd.sim.world import World
 from avoidd.sources.base import FrameSource
 from avoidd.types import Mount, RectifiedRig
@@ -305,6 +305,9 @@ class ExternalRun:
         """The ground station of the run (what it heard stays readable after the run)."""
         self.summary = ExternalSummary(scenario.name, mode)
         self._t0_ns = 0
+        self._renderer: RenderProcess | None = None
+        """The camera's renderer: one process for the run, lent to every source the head
+        opens (an unplugged camera comes back without a new process)."""
 
     async def run(self, port: int) -> ExternalSummary:
         """Start SITL and avoidd, fly the scenario, stop everything; the summary.
@@ -337,6 +340,7 @@ class ExternalRun:
         finally:
             if task is not None:
                 await daemon.stop_and_wait(task)
+            self._close_renderer()
             self._wind_up(ended)
             await sitl.stop()
         self._judge()
@@ -352,9 +356,20 @@ class ExternalRun:
     ) -> FrameSource:
         """The head's source (the daemon's ``open_source``): the world from the reported pose."""
         assert self.daemon is not None
-        renderer = StereoRenderer(self.world, rig, Mount())
         pose = vehicle_pose(self.daemon.vehicle, self.offset_ne_m)
-        return PoseRenderedSource(renderer, pose, self.scenario.fps, seed=self.world.seed)
+        return PoseRenderedSource(self._lent_renderer(rig), pose, self.scenario.fps)
+
+    def _lent_renderer(self, rig: RectifiedRig) -> LentRenderer:
+        """The run's renderer (started on first use), lent to a source."""
+        if self._renderer is None:
+            self._renderer = RenderProcess(self.world, rig, Mount(), seed=self.world.seed)
+        return LentRenderer(self._renderer)
+
+    def _close_renderer(self) -> None:
+        """Stop the run's renderer process, if one started."""
+        if self._renderer is not None:
+            self._renderer.close()
+            self._renderer = None
 
     async def _fly(self, gcs: GroundStation) -> None:
         await gcs.request_message_interval("LOCAL_POSITION_NED", 10.0)

@@ -15,13 +15,11 @@ import time
 from collections.abc import Callable
 from dataclasses import dataclass
 
-import numpy as np
-
 from avoidd.config.sim import load_world
 from avoidd.config.sources import SimSourceConfig
 from avoidd.errors import BrokenFrame, SourceError
 from avoidd.mavlink.vehicle import Vehicle
-from avoidd.sim.render import StereoRenderer
+from avoidd.sim.render_process import PairRenderer, RenderProcess
 from avoidd.sim.world import World
 from avoidd.sources.base import FrameSource, Pacer
 from avoidd.types import FramePose, Mount, RectifiedRig, StereoFrame
@@ -101,26 +99,25 @@ class PoseRenderedSource:
     """Frames rendered from the vehicle's reported pose, paced at ``fps``.
 
     Args:
-        renderer: The head's renderer (its world, rig and mount).
+        renderer: The head's renderer (its world, rig, mount and noise), in a process of its
+            own in practice (:class:`~avoidd.sim.render_process.RenderProcess`); closed with
+            the source.
         pose_at: The vehicle's pose at a time.
         fps: Frames per second.
-        seed: Seed of the sensor noise.
         wait_s: How long a read waits for a pose before it gives up on that frame (no pose:
             nothing to render, and an image from a made-up pose would be a lie).
     """
 
     def __init__(
         self,
-        renderer: StereoRenderer,
+        renderer: PairRenderer,
         pose_at: PoseNow,
         fps: float,
-        seed: int = 0,
         wait_s: float = 0.5,
     ) -> None:
         self._renderer = renderer
         self._pose_at = pose_at
         self._pacer = Pacer(fps)
-        self._rng = np.random.default_rng(seed)
         self._wait_ns = int(wait_s * 1e9)
         self._seq = 0
 
@@ -146,14 +143,15 @@ class PoseRenderedSource:
             time.sleep(0.05)
             t_capture_ns = time.monotonic_ns()
             pose = self._pose_at(t_capture_ns)
-        pair = self._renderer.render(
-            pose.north_m,
-            pose.east_m,
-            pose.down_m,
-            pose.yaw_rad,
-            math.degrees(pose.roll_rad),
-            math.degrees(pose.pitch_rad),
-            self._rng,
+        left, right = self._renderer.render_pair(
+            (
+                pose.north_m,
+                pose.east_m,
+                pose.down_m,
+                pose.yaw_rad,
+                math.degrees(pose.roll_rad),
+                math.degrees(pose.pitch_rad),
+            )
         )
         # Like a real camera's, the frame carries no attitude: the daemon takes the autopilot's
         # at the capture time. It carries the height it was rendered at, which the daemon
@@ -162,12 +160,13 @@ class PoseRenderedSource:
         # 1.5 m in 15 s; the rendered ground then stood above the rangefinder's ground plane,
         # an obstacle 2 m ahead, and PX4's collision prevention would not let the vehicle fly).
         height = FramePose(math.nan, math.nan, max(-pose.down_m, 0.0), "mavlink", "simulator")
-        frame = StereoFrame(self._seq, t_capture_ns, pair.left, pair.right, None, height)
+        frame = StereoFrame(self._seq, t_capture_ns, left, right, None, height)
         self._seq += 1
         return frame
 
     def close(self) -> None:
-        """Nothing to release."""
+        """Stop the renderer."""
+        self._renderer.close()
 
 
 def open_sim_source(
@@ -187,9 +186,9 @@ def open_sim_source(
     if rig.doffs_px != 0.0:
         raise SourceError("a sim source renders rigs with doffs 0; use a rectified calibration")
     world = World.from_config(load_world(config.world))
-    renderer = StereoRenderer(world, rig, mount, config.noise_std)
+    renderer = RenderProcess(world, rig, mount, config.noise_std, seed=world.seed)
     pose_at = vehicle_pose(vehicle, config.origin_ne_m)
-    return PoseRenderedSource(renderer, pose_at, config.fps, seed=world.seed)
+    return PoseRenderedSource(renderer, pose_at, config.fps)
 
 
 class UnpluggableSource:

@@ -47,9 +47,8 @@ from avoidd.sim.pose_source import (
     vehicle_pose,
 )
 from avoidd.sim.px4 import ONBOARD_PORT, Px4Sitl
-from avoidd.sim.render import StereoRenderer
 from avoidd.sources.base import FrameSource
-from avoidd.types import Mount, RectifiedRig
+from avoidd.types import RectifiedRig
 from avoidd.vision.calibration import Calibration
 
 logger = logging.getLogger(__name__)
@@ -160,6 +159,7 @@ class Px4Run(ExternalRun):
                 )
             if task is not None:
                 await daemon.stop_and_wait(task)
+            self._close_renderer()
             self._wind_up(ended)
             await sitl.stop()
         self._judge()
@@ -180,7 +180,7 @@ class Px4Run(ExternalRun):
         """
         daemon = self.daemon
         assert daemon is not None
-        renderer = StereoRenderer(self.world, rig, Mount())
+        renderer = self._lent_renderer(rig)
         local = vehicle_pose(daemon.vehicle)
 
         def pose(t_ns: int) -> VehiclePose | None:
@@ -195,7 +195,7 @@ class Px4Run(ExternalRun):
             down_m = found.down_m + (daemon.vehicle.home_up_m or 0.0)
             return dataclasses.replace(found, north_m=north_m, east_m=east_m, down_m=down_m)
 
-        camera = PoseRenderedSource(renderer, pose, self.scenario.fps, seed=self.world.seed)
+        camera = PoseRenderedSource(renderer, pose, self.scenario.fps)
         return UnpluggableSource(camera, self._plugged)
 
     @property

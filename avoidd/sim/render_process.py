@@ -1,0 +1,186 @@
+"""A simulated camera's renderer in a process of its own.
+
+A real camera exposes and reads out its frames on its own hardware: none of that is the
+companion computer's work. Rendered in the daemon's process, a simulated camera's frames cost
+about as much CPU as the daemon's whole pipeline (320x240: some 20 ms a pair against 26), and on
+a busy machine the two wait for each other: the frames' age reaches the daemon's limit, and the
+data goes stale. :class:`RenderProcess` renders in a child process that starts a session of its
+own, so the kernel's autogroup scheduling shares the CPU out to it as to another program, not
+as one more thread of the daemon's.
+
+The child ends when its pipe closes: at :meth:`RenderProcess.close`, or when the daemon's
+process ends in any way (the operating system closes the pipe).
+"""
+
+from __future__ import annotations
+
+import contextlib
+import multiprocessing
+import os
+from multiprocessing.connection import Connection
+from typing import Protocol
+
+import numpy as np
+
+from avoidd.errors import SourceError
+from avoidd.sim.world import World
+from avoidd.types import Image, Mount, RectifiedRig
+
+_START_TIMEOUT_S = 60.0
+"""How long the first pair may take (the child imports NumPy and OpenCV and builds the texture
+first; seconds idle, more on a loaded machine)."""
+_PAIR_TIMEOUT_S = 10.0
+"""How long any later pair may take before the renderer is taken for hung."""
+
+PoseArgs = tuple[float, float, float, float, float, float]
+"""north_m, east_m, down_m, yaw_rad, roll_deg, pitch_deg: what the renderer draws from."""
+
+
+class PairRenderer(Protocol):
+    """Renders a head's two views from a vehicle pose."""
+
+    def render_pair(self, pose: PoseArgs) -> tuple[Image, Image]:
+        """The left and right grey views from the pose."""
+        ...
+
+    def close(self) -> None:
+        """Release what the renderer holds."""
+        ...
+
+
+class LocalRenderer:
+    """The renderer in the caller's own process and thread (tests, one-off renders).
+
+    Args:
+        world: The world.
+        rig: The head's rectified rig.
+        mount: The head's mount.
+        noise_std: Sensor noise in grey levels.
+        seed: Seed of the sensor noise.
+    """
+
+    def __init__(
+        self, world: World, rig: RectifiedRig, mount: Mount, noise_std: float = 1.0, seed: int = 0
+    ) -> None:
+        from avoidd.sim.render import StereoRenderer  # NumPy work only when used
+
+        self.renderer = StereoRenderer(world, rig, mount, noise_std)
+        self._rng = np.random.default_rng(seed)
+
+    def render_pair(self, pose: PoseArgs) -> tuple[Image, Image]:
+        """The left and right grey views from the pose."""
+        pair = self.renderer.render(*pose, rng=self._rng)
+        return pair.left, pair.right
+
+    def close(self) -> None:
+        """Nothing to release."""
+
+
+class RenderProcess:
+    """The renderer in a child process with a session (and so a CPU share) of its own.
+
+    Args:
+        world: The world.
+        rig: The head's rectified rig.
+        mount: The head's mount.
+        noise_std: Sensor noise in grey levels.
+        seed: Seed of the sensor noise (the same frames as :class:`LocalRenderer` with it).
+
+    The child starts at once; the first :meth:`render_pair` waits for it to be ready.
+    """
+
+    def __init__(
+        self, world: World, rig: RectifiedRig, mount: Mount, noise_std: float = 1.0, seed: int = 0
+    ) -> None:
+        context = multiprocessing.get_context("spawn")  # no fork of a threaded daemon
+        self._conn, child = context.Pipe()
+        self._process = context.Process(
+            target=_serve,
+            args=(child, world, rig, mount, noise_std, seed),
+            name="avoidd-sim-camera",
+            daemon=True,
+        )
+        self._process.start()
+        child.close()
+        self._started = False
+
+    @property
+    def pid(self) -> int | None:
+        """The child's process id (None before it started)."""
+        return self._process.pid
+
+    def render_pair(self, pose: PoseArgs) -> tuple[Image, Image]:
+        """The left and right grey views from the pose, rendered by the child.
+
+        Raises:
+            SourceError: The child stopped, failed or did not answer in time (the head then
+                treats the camera as lost and opens a new one with backoff).
+        """
+        timeout_s = _PAIR_TIMEOUT_S if self._started else _START_TIMEOUT_S
+        try:
+            self._conn.send(pose)
+            if not self._conn.poll(timeout_s):
+                raise SourceError(f"the simulated camera's renderer gave no frame in {timeout_s} s")
+            reply = self._conn.recv()
+        except (EOFError, OSError) as exc:
+            raise SourceError(f"the simulated camera's renderer stopped ({exc!r})") from exc
+        if isinstance(reply, str):
+            raise SourceError(f"the simulated camera's renderer failed: {reply}")
+        self._started = True
+        left, right = reply
+        return left, right
+
+    def close(self) -> None:
+        """Stop the child: close its pipe, then terminate it if it does not end by itself."""
+        with contextlib.suppress(OSError):
+            self._conn.close()
+        self._process.join(2.0)
+        if self._process.is_alive():
+            self._process.terminate()
+            self._process.join(2.0)
+        if self._process.is_alive():
+            self._process.kill()
+            self._process.join(2.0)
+
+
+def _serve(
+    conn: Connection, world: World, rig: RectifiedRig, mount: Mount, noise_std: float, seed: int
+) -> None:
+    """The child: a session of its own, then one pair per pose received, until the pipe closes."""
+    with contextlib.suppress(OSError):
+        os.setsid()
+    renderer = LocalRenderer(world, rig, mount, noise_std, seed)
+    while True:
+        try:
+            pose = conn.recv()
+        except (EOFError, OSError):
+            return
+        try:
+            reply: tuple[Image, Image] | str = renderer.render_pair(pose)
+        except Exception as exc:  # a bug in the renderer: told to the daemon, which logs it
+            reply = repr(exc)
+        try:
+            conn.send(reply)
+        except (EOFError, OSError):
+            return
+
+
+class LentRenderer:
+    """A renderer lent to a source that may be closed and opened again.
+
+    A scenario unplugs its camera: closing the source leaves the renderer running; its owner
+    closes it.
+
+    Args:
+        renderer: The renderer.
+    """
+
+    def __init__(self, renderer: PairRenderer) -> None:
+        self._renderer = renderer
+
+    def render_pair(self, pose: PoseArgs) -> tuple[Image, Image]:
+        """The renderer's pair."""
+        return self._renderer.render_pair(pose)
+
+    def close(self) -> None:
+        """Nothing: the renderer is its owner's."""
