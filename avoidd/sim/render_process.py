@@ -15,8 +15,9 @@ process ends in any way (the operating system closes the pipe).
 from __future__ import annotations
 
 import contextlib
-import multiprocessing
 import os
+import subprocess
+import sys
 from multiprocessing.connection import Connection
 from typing import Protocol
 
@@ -79,6 +80,11 @@ class LocalRenderer:
 class RenderProcess:
     """The renderer in a child process with a session (and so a CPU share) of its own.
 
+    The child is ``python -m avoidd.sim.render_process`` with a pipe each way (not
+    :mod:`multiprocessing`'s spawn, which runs the caller's main script again in the child:
+    a script without a ``__main__`` guard would start a second flight); its first message
+    carries the world, rig, mount, noise and seed.
+
     Args:
         world: The world.
         rig: The head's rectified rig.
@@ -86,27 +92,38 @@ class RenderProcess:
         noise_std: Sensor noise in grey levels.
         seed: Seed of the sensor noise (the same frames as :class:`LocalRenderer` with it).
 
+    Raises:
+        SourceError: The child could not be started.
+
     The child starts at once; the first :meth:`render_pair` waits for it to be ready.
     """
 
     def __init__(
         self, world: World, rig: RectifiedRig, mount: Mount, noise_std: float = 1.0, seed: int = 0
     ) -> None:
-        context = multiprocessing.get_context("spawn")  # no fork of a threaded daemon
-        self._conn, child = context.Pipe()
-        self._process = context.Process(
-            target=_serve,
-            args=(child, world, rig, mount, noise_std, seed),
-            name="avoidd-sim-camera",
-            daemon=True,
-        )
-        self._process.start()
-        child.close()
+        to_child_read, to_child_write = os.pipe()
+        from_child_read, from_child_write = os.pipe()
+        try:
+            self._process = subprocess.Popen(
+                [sys.executable, "-m", __name__, str(to_child_read), str(from_child_write)],
+                pass_fds=(to_child_read, from_child_write),
+                stdin=subprocess.DEVNULL,
+                start_new_session=True,
+            )
+        except OSError as exc:
+            for fd in (to_child_read, to_child_write, from_child_read, from_child_write):
+                os.close(fd)
+            raise SourceError(f"the simulated camera's renderer did not start ({exc})") from exc
+        os.close(to_child_read)
+        os.close(from_child_write)
+        self._send = Connection(to_child_write, readable=False)
+        self._receive = Connection(from_child_read, writable=False)
         self._started = False
+        self._send.send((world, rig, mount, noise_std, seed))
 
     @property
-    def pid(self) -> int | None:
-        """The child's process id (None before it started)."""
+    def pid(self) -> int:
+        """The child's process id."""
         return self._process.pid
 
     def render_pair(self, pose: PoseArgs) -> tuple[Image, Image]:
@@ -114,14 +131,14 @@ class RenderProcess:
 
         Raises:
             SourceError: The child stopped, failed or did not answer in time (the head then
-                treats the camera as lost and opens a new one with backoff).
+                treats the camera as lost and opens it again with backoff).
         """
         timeout_s = _PAIR_TIMEOUT_S if self._started else _START_TIMEOUT_S
         try:
-            self._conn.send(pose)
-            if not self._conn.poll(timeout_s):
+            self._send.send(pose)
+            if not self._receive.poll(timeout_s):
                 raise SourceError(f"the simulated camera's renderer gave no frame in {timeout_s} s")
-            reply = self._conn.recv()
+            reply = self._receive.recv()
         except (EOFError, OSError) as exc:
             raise SourceError(f"the simulated camera's renderer stopped ({exc!r})") from exc
         if isinstance(reply, str):
@@ -131,38 +148,19 @@ class RenderProcess:
         return left, right
 
     def close(self) -> None:
-        """Stop the child: close its pipe, then terminate it if it does not end by itself."""
-        with contextlib.suppress(OSError):
-            self._conn.close()
-        self._process.join(2.0)
-        if self._process.is_alive():
+        """Stop the child: close its pipes, then terminate it if it does not end by itself."""
+        for conn in (self._send, self._receive):
+            with contextlib.suppress(OSError):
+                conn.close()
+        try:
+            self._process.wait(2.0)
+        except subprocess.TimeoutExpired:
             self._process.terminate()
-            self._process.join(2.0)
-        if self._process.is_alive():
-            self._process.kill()
-            self._process.join(2.0)
-
-
-def _serve(
-    conn: Connection, world: World, rig: RectifiedRig, mount: Mount, noise_std: float, seed: int
-) -> None:
-    """The child: a session of its own, then one pair per pose received, until the pipe closes."""
-    with contextlib.suppress(OSError):
-        os.setsid()
-    renderer = LocalRenderer(world, rig, mount, noise_std, seed)
-    while True:
-        try:
-            pose = conn.recv()
-        except (EOFError, OSError):
-            return
-        try:
-            reply: tuple[Image, Image] | str = renderer.render_pair(pose)
-        except Exception as exc:  # a bug in the renderer: told to the daemon, which logs it
-            reply = repr(exc)
-        try:
-            conn.send(reply)
-        except (EOFError, OSError):
-            return
+            try:
+                self._process.wait(2.0)
+            except subprocess.TimeoutExpired:
+                self._process.kill()
+                self._process.wait(2.0)
 
 
 class LentRenderer:
@@ -184,3 +182,36 @@ class LentRenderer:
 
     def close(self) -> None:
         """Nothing: the renderer is its owner's."""
+
+
+def serve(receive: Connection, send: Connection) -> None:
+    """The child's loop: its settings first, then one pair per pose, until the pipe closes.
+
+    Args:
+        receive: The pipe from the daemon.
+        send: The pipe to it.
+    """
+    try:
+        world, rig, mount, noise_std, seed = receive.recv()
+    except (EOFError, OSError):
+        return
+    renderer = LocalRenderer(world, rig, mount, noise_std, seed)
+    while True:
+        try:
+            pose = receive.recv()
+        except (EOFError, OSError):
+            return
+        try:
+            reply: tuple[Image, Image] | str = renderer.render_pair(pose)
+        except Exception as exc:  # a bug in the renderer: told to the daemon, which logs it
+            reply = repr(exc)
+        try:
+            send.send(reply)
+        except (EOFError, OSError):
+            return
+
+
+if __name__ == "__main__":
+    serve(
+        Connection(int(sys.argv[1]), writable=False), Connection(int(sys.argv[2]), readable=False)
+    )
