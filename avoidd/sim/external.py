@@ -256,7 +256,7 @@ def daemon_config(
                 "obstacle_distance": {"max_distance_cm": round(MAX_RANGE_M * 100)},
             },
             # One frame at a time on one thread (the least CPU): the SITL and the camera's
-            # renderer share the machine, and at the scenarios' 8-15 fps overlapping the
+            # renderer share the machine, and at the scenarios' 8 fps overlapping the
             # stages buys no frame rate but two threads that contend for the cores (with two
             # busy processes beside it: frame age p99 250-290 ms against 300-400 ms).
             "pipeline": {"max_age_ms": 300, "log_interval_s": 5.0, "threads": 1},
