@@ -5,6 +5,7 @@ from __future__ import annotations
 import math
 import os
 import signal
+import threading
 import time
 from pathlib import Path
 
@@ -22,6 +23,7 @@ from avoidd.mavlink.link import MavLink
 from avoidd.mavlink.mock_autopilot import MockAutopilot
 from avoidd.mavlink.vehicle import Rangefinder, Vehicle
 from avoidd.perception.pose import resolve_pose
+from avoidd.sim import render_process
 from avoidd.sim.lockstep import RIGS
 from avoidd.sim.mav_autopilot import scan_from_message
 from avoidd.sim.pose_source import PoseRenderedSource, VehiclePose, vehicle_pose
@@ -128,6 +130,46 @@ def test_a_render_process_that_died_is_a_lost_camera_and_a_closed_one_is_gone() 
     finally:
         remote.close()
     assert not _alive(pid)
+
+
+def test_a_late_renderer_is_broken_for_good_and_close_frees_a_waiting_thread(
+    monkeypatch: pytest.MonkeyPatch,
+) -> None:
+    # A late answer would pair a frame with the wrong pose: after a timeout the renderer
+    # refuses every later frame and its child is gone.
+    world = World.from_config(WorldConfig.model_validate(WALL))
+    pose = (0.0, 0.0, -2.0, 0.0, 0.0, 0.0)
+    late = RenderProcess(world, RIGS["320x240"], Mount())
+    try:
+        late.render_pair(pose)
+        monkeypatch.setattr(render_process, "_PAIR_TIMEOUT_S", 0.3)
+        os.kill(late.pid, signal.SIGSTOP)  # hung
+        with pytest.raises(SourceError, match="gave no frame"):
+            late.render_pair(pose)
+        assert late.broken and not _alive(late.pid)
+        with pytest.raises(SourceError, match="stopped earlier"):
+            late.render_pair(pose)
+    finally:
+        late.close()
+    # A capture thread waiting for a frame when the run ends: close() lets it go at once.
+    waiting = RenderProcess(world, RIGS["320x240"], Mount())
+    os.kill(waiting.pid, signal.SIGSTOP)
+    failures: list[BaseException] = []
+
+    def capture() -> None:
+        try:
+            waiting.render_pair(pose)
+        except SourceError as exc:
+            failures.append(exc)
+
+    thread = threading.Thread(target=capture)
+    thread.start()
+    time.sleep(0.2)
+    waiting.close()
+    thread.join(10.0)
+    assert not thread.is_alive() and len(failures) == 1
+    assert not _alive(waiting.pid)
+    waiting.close()  # twice is harmless
 
 
 def _alive(pid: int) -> bool:

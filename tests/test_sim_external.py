@@ -4,11 +4,22 @@ from __future__ import annotations
 
 import asyncio
 import itertools
+import os
+import signal
+from pathlib import Path
 
 import pytest
 
-from avoidd.errors import LinkError
-from avoidd.sim.external import Sample, fly_while_running, window_around_minimum
+from avoidd.config.sim import load_scenario
+from avoidd.errors import LinkError, SourceError
+from avoidd.sim.external import (
+    ExternalRun,
+    Sample,
+    fly_while_running,
+    window_around_minimum,
+)
+from avoidd.sim.lockstep import RIGS
+from tests.helpers import REPO
 
 
 def _flight() -> list[Sample]:
@@ -77,3 +88,27 @@ async def test_a_flight_that_ends_first_returns_or_raises_its_own_failure() -> N
     finally:
         daemon.cancel()
         await asyncio.gather(daemon, return_exceptions=True)
+
+
+def test_a_run_lends_one_renderer_and_replaces_it_once_broken(tmp_path: Path) -> None:
+    run = ExternalRun(load_scenario(REPO / "sitl" / "ardupilot" / "wall-around.yaml"), tmp_path)
+    rig = RIGS["320x240"]
+    try:
+        first = run._lent_renderer(rig)
+        left, _ = first.render_pair((0.0, 0.0, -2.0, 0.0, 0.0, 0.0))
+        assert left.shape == (240, 320)
+        renderer = run._renderer
+        assert renderer is not None
+        first.close()  # a source closed (the camera unplugged): the renderer runs on
+        again = run._lent_renderer(rig)
+        assert run._renderer is renderer and not renderer.broken
+        os.kill(renderer.pid, signal.SIGKILL)  # the child died
+        with pytest.raises(SourceError):
+            again.render_pair((0.0, 0.0, -2.0, 0.0, 0.0, 0.0))
+        # The head reopens its camera after the loss: a new renderer.
+        run._lent_renderer(rig).render_pair((1.0, 0.0, -2.0, 0.0, 0.0, 0.0))
+        assert run._renderer is not None and run._renderer.pid != renderer.pid
+        replacement = run._renderer
+    finally:
+        run._close_renderer()
+    assert run._renderer is None and replacement.broken

@@ -342,9 +342,11 @@ class ExternalRun:
             ended = exc
             raise
         finally:
-            if task is not None:
-                await daemon.stop_and_wait(task)
-            self._close_renderer()
+            try:
+                if task is not None:
+                    await daemon.stop_and_wait(task)
+            finally:
+                await asyncio.to_thread(self._close_renderer)
             self._wind_up(ended)
             await sitl.stop()
         self._judge()
@@ -364,16 +366,24 @@ class ExternalRun:
         return PoseRenderedSource(self._lent_renderer(rig), pose, self.scenario.fps)
 
     def _lent_renderer(self, rig: RectifiedRig) -> LentRenderer:
-        """The run's renderer (started on first use), lent to a source."""
+        """The run's renderer, lent to a source; started on first use, and again when broken.
+
+        A renderer that failed (its child gone or late) is replaced: the head reopens its
+        camera after a loss, as it would a real one. One head per run: the rig is the first
+        caller's.
+        """
+        if self._renderer is not None and self._renderer.broken:
+            self._renderer.close()
+            self._renderer = None
         if self._renderer is None:
             self._renderer = RenderProcess(self.world, rig, Mount(), seed=self.world.seed)
         return LentRenderer(self._renderer)
 
     def _close_renderer(self) -> None:
         """Stop the run's renderer process, if one started."""
-        if self._renderer is not None:
-            self._renderer.close()
-            self._renderer = None
+        renderer, self._renderer = self._renderer, None
+        if renderer is not None:
+            renderer.close()
 
     async def _fly(self, gcs: GroundStation) -> None:
         await gcs.request_message_interval("LOCAL_POSITION_NED", 10.0)

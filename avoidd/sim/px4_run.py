@@ -157,9 +157,11 @@ class Px4Run(ExternalRun):
                     self.sticks.sent,
                     self.sticks.longest_gap_s,
                 )
-            if task is not None:
-                await daemon.stop_and_wait(task)
-            self._close_renderer()
+            try:
+                if task is not None:
+                    await daemon.stop_and_wait(task)
+            finally:
+                await asyncio.to_thread(self._close_renderer)
             self._wind_up(ended)
             await sitl.stop()
         self._judge()

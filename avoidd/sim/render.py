@@ -151,10 +151,10 @@ class _Hits:
         # copyto with a mask writes in one pass (indexing by the mask would gather first).
         np.copyto(self.t[window], t, where=nearer)
         np.copyto(self.ids[window], np.int16(surface_id), where=nearer)
-        np.copyto(self.s[window], s, where=nearer, casting="same_kind")
-        np.copyto(self.u[window], u, where=nearer, casting="same_kind")
-        np.copyto(self.cos[window], cos, where=nearer, casting="same_kind")
-        np.copyto(self.light[window], light, where=nearer, casting="same_kind")
+        np.copyto(self.s[window], s, where=nearer)
+        np.copyto(self.u[window], u, where=nearer)
+        np.copyto(self.cos[window], cos, where=nearer)
+        np.copyto(self.light[window], light, where=nearer)
 
 
 def _light(normal_ned: FloatArray) -> FloatArray:
@@ -414,7 +414,8 @@ class StereoRenderer:
         those faces (three at most) are intersected: a plane each, then a bounds check in it.
         A face covers less of the screen than the box, and each pixel costs a few operations
         per face rather than a slab test on all three axes. Faces are offered along the
-        length, across, then top and bottom; a pixel on an edge keeps the first.
+        length, across, then top and bottom; a pixel on an edge keeps the nearer hit, the
+        first on a tie (float rounding may pick the other face there than a slab test would).
         """
         co, si = math.cos(box.yaw_rad), math.sin(box.yaw_rad)
         on, oe, od = float(centre[0]) - box.north_m, float(centre[1]) - box.east_m, float(centre[2])
@@ -490,7 +491,7 @@ class StereoRenderer:
     def _gatherer(self, ids: npt.NDArray[np.int16]) -> Callable[[AnyArray], AnyArray]:
         """Per-pixel lookup of a per-surface table by the pixels' surface ids.
 
-        With fewer than 256 surfaces the ids fit a byte and OpenCV's table lookup does it (a
+        With at most 256 surfaces the ids fit a byte and OpenCV's table lookup does it (a
         fraction of NumPy's indexing by an int16 array); otherwise NumPy indexes.
         """
         if len(self._surface_table.albedo) > 256:

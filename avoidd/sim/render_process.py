@@ -18,6 +18,7 @@ import contextlib
 import os
 import subprocess
 import sys
+import threading
 from multiprocessing.connection import Connection
 from typing import Protocol
 
@@ -83,7 +84,10 @@ class RenderProcess:
     The child is ``python -m avoidd.sim.render_process`` with a pipe each way (not
     :mod:`multiprocessing`'s spawn, which runs the caller's main script again in the child:
     a script without a ``__main__`` guard would start a second flight); its first message
-    carries the world, rig, mount, noise and seed.
+    carries the world, rig, mount, noise and seed. It starts at once; the first
+    :meth:`render_pair` waits for it to be ready. A renderer that failed once (no answer in
+    time, the child gone) is :attr:`broken` for good: a late answer would pair a frame with
+    the wrong pose, so the child is stopped and its owner starts another.
 
     Args:
         world: The world.
@@ -94,37 +98,51 @@ class RenderProcess:
 
     Raises:
         SourceError: The child could not be started.
-
-    The child starts at once; the first :meth:`render_pair` waits for it to be ready.
     """
 
     def __init__(
         self, world: World, rig: RectifiedRig, mount: Mount, noise_std: float = 1.0, seed: int = 0
     ) -> None:
-        to_child_read, to_child_write = os.pipe()
-        from_child_read, from_child_write = os.pipe()
+        self._lock = threading.Lock()
+        self._broken = False
+        self._started = False
+        fds: list[int] = []
         try:
+            fds += os.pipe()  # to the child: read end, write end
+            fds += os.pipe()  # from the child: read end, write end
+            to_child_read, to_child_write, from_child_read, from_child_write = fds
+            # The child imports avoidd as this process does, wherever it was found.
+            env = os.environ | {"PYTHONPATH": os.pathsep.join(p for p in sys.path if p)}
             self._process = subprocess.Popen(
                 [sys.executable, "-m", __name__, str(to_child_read), str(from_child_write)],
                 pass_fds=(to_child_read, from_child_write),
                 stdin=subprocess.DEVNULL,
                 start_new_session=True,
+                env=env,
             )
-        except OSError as exc:
-            for fd in (to_child_read, to_child_write, from_child_read, from_child_write):
+        except (OSError, ValueError) as exc:
+            for fd in fds:
                 os.close(fd)
             raise SourceError(f"the simulated camera's renderer did not start ({exc})") from exc
         os.close(to_child_read)
         os.close(from_child_write)
         self._send = Connection(to_child_write, readable=False)
         self._receive = Connection(from_child_read, writable=False)
-        self._started = False
-        self._send.send((world, rig, mount, noise_std, seed))
+        try:
+            self._send.send((world, rig, mount, noise_std, seed))
+        except (OSError, ValueError) as exc:
+            self.close()
+            raise SourceError(f"the simulated camera's renderer did not start ({exc})") from exc
 
     @property
     def pid(self) -> int:
         """The child's process id."""
         return self._process.pid
+
+    @property
+    def broken(self) -> bool:
+        """Whether the renderer failed (or was closed) and must be replaced."""
+        return self._broken or self._process.poll() is not None
 
     def render_pair(self, pose: PoseArgs) -> tuple[Image, Image]:
         """The left and right grey views from the pose, rendered by the child.
@@ -133,33 +151,52 @@ class RenderProcess:
             SourceError: The child stopped, failed or did not answer in time (the head then
                 treats the camera as lost and opens it again with backoff).
         """
-        timeout_s = _PAIR_TIMEOUT_S if self._started else _START_TIMEOUT_S
-        try:
-            self._send.send(pose)
-            if not self._receive.poll(timeout_s):
-                raise SourceError(f"the simulated camera's renderer gave no frame in {timeout_s} s")
-            reply = self._receive.recv()
-        except (EOFError, OSError) as exc:
-            raise SourceError(f"the simulated camera's renderer stopped ({exc!r})") from exc
-        if isinstance(reply, str):
-            raise SourceError(f"the simulated camera's renderer failed: {reply}")
-        self._started = True
+        with self._lock:
+            if self._broken:
+                raise SourceError("the simulated camera's renderer stopped earlier")
+            timeout_s = _PAIR_TIMEOUT_S if self._started else _START_TIMEOUT_S
+            try:
+                self._send.send(pose)
+                if not self._receive.poll(timeout_s):
+                    raise SourceError(
+                        f"the simulated camera's renderer gave no frame in {timeout_s:.0f} s"
+                    )
+                reply = self._receive.recv()
+            except (EOFError, OSError, SourceError) as exc:
+                self._broken = True
+                self._stop_child()
+                if isinstance(exc, SourceError):
+                    raise
+                raise SourceError(f"the simulated camera's renderer stopped ({exc!r})") from exc
+            if isinstance(reply, str):
+                raise SourceError(f"the simulated camera's renderer failed: {reply}")
+            self._started = True
         left, right = reply
         return left, right
 
     def close(self) -> None:
-        """Stop the child: close its pipes, then terminate it if it does not end by itself."""
-        for conn in (self._send, self._receive):
-            with contextlib.suppress(OSError):
-                conn.close()
+        """Stop the child and release the pipes; safe from another thread and twice.
+
+        The child is stopped first: a thread waiting in :meth:`render_pair` then sees the pipe
+        end and lets go, and the pipes are closed only after it has.
+        """
+        self._broken = True
+        self._stop_child()
+        with self._lock:
+            for conn in (self._send, self._receive):
+                with contextlib.suppress(OSError):
+                    conn.close()
+
+    def _stop_child(self) -> None:
+        """Terminate the child (kill it if it lingers) and reap it."""
+        if self._process.poll() is not None:
+            return
+        self._process.terminate()
         try:
             self._process.wait(2.0)
         except subprocess.TimeoutExpired:
-            self._process.terminate()
-            try:
-                self._process.wait(2.0)
-            except subprocess.TimeoutExpired:
-                self._process.kill()
+            self._process.kill()
+            with contextlib.suppress(subprocess.TimeoutExpired):
                 self._process.wait(2.0)
 
 
