@@ -21,6 +21,7 @@ from pymavlink import mavutil
 from avoidd.config.sim import load_scenario
 from avoidd.daemon import Daemon
 from avoidd.daemon.outputs import Outputs
+from avoidd.errors import LinkError
 from avoidd.loading import load_all
 from avoidd.mavlink import codec as mav
 from avoidd.planner.core import Goal
@@ -71,10 +72,15 @@ async def test_px4_discovery_streams_arming_and_restart(px4_sitl_dir: Path, tmp_
         await asyncio.sleep(2.0)
         attitude_hz = (daemon.received["ATTITUDE"] - attitude) / 2.0
         position_hz = (daemon.received["LOCAL_POSITION_NED"] - position) / 2.0
-        # Arming as PX4 reports it.
-        assert await gcs.arm(retry_s=60.0)
+        # Arming as PX4 reports it, in a take-off that cannot reach its height (10 m, above
+        # MIS_TAKEOFF_ALT): the failure says what PX4 did, its console included.
+        with pytest.raises(LinkError) as failed:
+            await sitl.take_off(10.0, tries=1, climb_s=8.0)
         assert await wait_for(lambda: vehicle.mode is not None and vehicle.mode.armed, 5.0)
-        assert await gcs.command(400, 0.0) == mav.MAV_RESULT_ACCEPTED  # disarm
+        story = str(failed.value)
+        assert "TAKEOFF armed" in story and "in air" in story, story
+        assert "Armed by external command" in story or "Takeoff detected" in story, story
+        assert await gcs.disarm_to_retry() == mav.MAV_RESULT_ACCEPTED  # in the air: by force
         assert await wait_for(lambda: vehicle.mode is not None and not vehicle.mode.armed, 5.0)
         # MAV_CMD_PREFLIGHT_REBOOT_SHUTDOWN. PX4 SITL either reboots in place (its boot clock
         # starts over) or its process ends; for the latter, start the process again.
@@ -107,7 +113,7 @@ async def test_px4_discovery_streams_arming_and_restart(px4_sitl_dir: Path, tmp_
         f"\nPX4 first mode {first_mode}; estimator settled after {settled_s:.1f} s; ATTITUDE "
         f"{attitude_hz:.0f} Hz, LOCAL_POSITION_NED {position_hz:.0f} Hz; reboot command "
         f"MAV_RESULT {result}, process exited: {exited}; reboot seen {back_s:.1f} s after the "
-        f"command or restart; test {time.monotonic() - t0:.0f} s"
+        f"command or restart; test {time.monotonic() - t0:.0f} s; a take-off to 10 m: {story}"
     )
     assert settled_s < 90.0
     assert attitude_hz >= 20 and position_hz >= 5
@@ -357,23 +363,6 @@ async def test_px4_offboard_planner_flies_round_the_wall_and_yields_to_the_pilot
     assert run.setpoints_after_release == 0
 
 
-async def _take_off(gcs: GroundStation) -> bool:
-    """Arm and take off to 2 m and more; a take-off that never leaves the ground is tried again
-    (seen now and then, idle and under load: accepted, no climb), as the PX4 runner does."""
-    nan = math.nan
-    for _ in range(3):
-        assert await gcs.arm(retry_s=60.0)
-        assert await gcs.command(22, -1, 0, 0, nan, nan, nan, nan) == mav.MAV_RESULT_ACCEPTED
-        climbed = await gcs.next_message(
-            lambda m: m.get_type() == "GLOBAL_POSITION_INT" and m.relative_alt > 2000, 30.0
-        )
-        if climbed is not None:
-            return True
-        await gcs.disarm_to_retry()  # by force: stuck at 0.3 m PX4 is "not landed"
-        await asyncio.sleep(2.0)
-    return False
-
-
 def _state(daemon: Daemon) -> str | None:
     return None if daemon.avoidance is None else daemon.avoidance.state
 
@@ -414,7 +403,7 @@ async def test_px4_leaves_offboard_when_avoidd_stops_and_a_restarted_avoidd_wait
     task: asyncio.Task[int] | None = asyncio.create_task(daemon.run())
     try:
         await sitl.wait_estimator(120.0)
-        assert await _take_off(gcs), "PX4 did not take off in three tries"
+        await sitl.take_off(2.0)  # tries again when a take-off stalls; says why it failed
         assert await wait_for(lambda: daemon.avoidance.state == "prestream", 20.0)
         await asyncio.sleep(1.5)
         assert await gcs.set_mode("px4", "OFFBOARD") == mav.MAV_RESULT_ACCEPTED

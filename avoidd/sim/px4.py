@@ -21,7 +21,9 @@ from __future__ import annotations
 
 import asyncio
 import logging
+import math
 import os
+import re
 import shutil
 import socket
 import tempfile
@@ -29,7 +31,10 @@ import time
 from pathlib import Path
 from types import TracebackType
 
+from pymavlink import mavutil
+
 from avoidd.errors import LinkError
+from avoidd.mavlink import codec as mav
 from avoidd.sim.gcs import GroundStation
 from avoidd.sim.process import end_process_group
 
@@ -42,6 +47,8 @@ GCS_PORT = 14550
 """Where PX4's ground-station link sends (from UDP 18570)."""
 ONBOARD_PORT = 14540
 """Where PX4's onboard link sends (from UDP 14580): avoidd's ``udpin`` port."""
+CONSOLE = "console.log"
+"""PX4's console output, in the run's folder (deleted with it)."""
 PX4_PORTS = (18570, 14580, 14280, 13030, 19450)
 """UDP ports PX4 instance 0 binds for its MAVLink instances."""
 
@@ -49,6 +56,9 @@ ESTIMATOR_READY = 0x01 | 0x02 | 0x04 | 0x08 | 0x10 | 0x20
 """ESTIMATOR_STATUS flags that must all be set: attitude, horizontal and vertical velocity,
 relative and absolute horizontal position, absolute vertical position."""
 ESTIMATOR_BAD = 0x0400 | 0x0800  # GPS glitch, accelerometer error
+NAV_TAKEOFF = 22
+_LANDED = {0: "undefined", 1: "on ground", 2: "in air", 3: "taking off", 4: "landing"}
+"""MAV_LANDED_STATE names."""
 
 
 def _udp_free(port: int) -> bool:
@@ -163,20 +173,39 @@ class Px4Sitl:
         environment = dict(os.environ)
         environment["PATH"] = f"{bin_dir}:{environment.get('PATH', '/usr/bin:/bin')}"
         environment["PX4_SIM_MODEL"] = self.model
-        self.process = await asyncio.create_subprocess_exec(
-            str(bin_dir / "px4"),
-            "-d",
-            str(self.romfs),
-            "-w",
-            str(self._root / "work"),
-            cwd=self._root,
-            env=environment,
-            stdin=asyncio.subprocess.DEVNULL,
-            stdout=asyncio.subprocess.DEVNULL,
-            stderr=asyncio.subprocess.DEVNULL,
-            start_new_session=True,
-        )
+        # PX4's console (its INFO/WARN/ERROR lines) goes to a file in the work folder: a
+        # failure can quote it (see console_tail) before the folder is deleted.
+        with open(self._root / CONSOLE, "wb") as console:
+            self.process = await asyncio.create_subprocess_exec(
+                str(bin_dir / "px4"),
+                "-d",
+                str(self.romfs),
+                "-w",
+                str(self._root / "work"),
+                cwd=self._root,
+                env=environment,
+                stdin=asyncio.subprocess.DEVNULL,
+                stdout=console,
+                stderr=asyncio.subprocess.STDOUT,
+                start_new_session=True,
+            )
         self.boots += 1
+
+    def console_tail(self, lines: int = 12) -> list[str]:
+        """The last ``lines`` lines PX4 printed (its console), for a failure's message.
+
+        Returns:
+            Those lines, oldest first (empty when PX4 is not running or printed nothing).
+        """
+        if self._root is None:
+            return []
+        try:
+            text = (self._root / CONSOLE).read_text(errors="replace")
+        except OSError:
+            return []
+        # Its lines carry colour codes for a terminal; drop them.
+        clean = re.sub(r"\x1b\[[0-9;]*m", "", text)
+        return [line for line in clean.splitlines() if line.strip()][-lines:]
 
     async def restart(self, timeout_s: float = 30.0) -> None:
         """Kill the process and start a fresh one (new work folder); the GCS stays open."""
@@ -210,6 +239,115 @@ class Px4Sitl:
         if ok is None:
             raise LinkError(f"PX4 SITL: estimator not ready within {timeout_s:.0f} s")
         return time.monotonic() - start
+
+    async def take_off(self, height_m: float, tries: int = 3, climb_s: float = 30.0) -> int:
+        """Arm and take off (NAV_TAKEOFF, to ``MIS_TAKEOFF_ALT``) until ``height_m`` above home.
+
+        NAV_TAKEOFF goes with every position parameter NaN: PX4 reads params 5-7 as latitude,
+        longitude and altitude above sea level and takes zeros literally (a take-off to
+        0 N 0 E stays on the ground). A take-off that does not reach the height (seen now and
+        then, idle and under load: accepted, TAKEOFF mode, stuck a few decimetres up where
+        PX4 denies a disarm as "not landed") is tried again: disarmed by force (the vehicle is
+        simulated), armed and commanded again; the last try runs in a fresh PX4 process (a
+        CI run once saw three stalls in a row in one process). Each failed try is logged with
+        what PX4 did.
+
+        Args:
+            height_m: Height above home (GLOBAL_POSITION_INT's ``relative_alt``) that counts
+                as taken off; below ``MIS_TAKEOFF_ALT``.
+            tries: Take-offs to try.
+            climb_s: Seconds a take-off has to reach the height.
+
+        Returns:
+            The tries it took.
+
+        Raises:
+            LinkError: PX4 would not arm within 60 s, refused the take-off for 20 s, did not
+                come back after the restart, or did not climb in ``tries`` tries (the message
+                tells each try).
+        """
+        gcs = self.gcs
+        assert gcs is not None
+        await gcs.request_message_interval("EXTENDED_SYS_STATE", 5.0)
+        stories: list[str] = []
+        for attempt in range(1, tries + 1):
+            if attempt == tries and attempt > 1:
+                logger.warning("PX4 SITL: restarting it for a last take-off")
+                await self.restart()
+                await self.wait_estimator(120.0)
+                await gcs.request_message_interval("EXTENDED_SYS_STATE", 5.0)
+            since_ns = time.monotonic_ns()
+            if not await gcs.arm(retry_s=60.0):
+                raise LinkError(f"PX4 would not arm within 60 s; it said {self._said(since_ns)}")
+            await self._command_take_off(since_ns)
+            climbed = await gcs.next_message(
+                lambda m: (
+                    m.get_type() == "GLOBAL_POSITION_INT"
+                    and gcs.from_autopilot(m)
+                    and m.relative_alt >= height_m * 1000.0
+                ),
+                climb_s,
+            )
+            if climbed is not None:
+                return attempt
+            story = f"try {attempt}: {self._take_off_story(since_ns)}"
+            stories.append(story)
+            logger.warning("PX4 did not climb to %.1f m: %s", height_m, story)
+            if attempt < tries - 1:
+                await gcs.disarm_to_retry()
+                await asyncio.sleep(2.0)  # down and still before arming again
+        raise LinkError(
+            f"PX4 did not climb to {height_m:.1f} m in {tries} tries: " + "; ".join(stories)
+        )
+
+    async def _command_take_off(self, since_ns: int) -> None:
+        """NAV_TAKEOFF until accepted (a command just after arming may be denied)."""
+        gcs = self.gcs
+        assert gcs is not None
+        nan = math.nan
+        deadline = time.monotonic() + 20.0
+        result: int | None = None
+        while time.monotonic() < deadline:
+            result = await gcs.command(NAV_TAKEOFF, -1, 0, 0, nan, nan, nan, nan)
+            if result == mav.MAV_RESULT_ACCEPTED:
+                return
+            await asyncio.sleep(1.0)
+        raise LinkError(
+            f"PX4 refused to take off (MAV_RESULT {result}; it said {self._said(since_ns)})"
+        )
+
+    def _said(self, since_ns: int) -> list[str]:
+        gcs = self.gcs
+        assert gcs is not None
+        return [str(m.text).strip() for m in gcs.of_type("STATUSTEXT", since_ns)][-6:]
+
+    def _take_off_story(self, since_ns: int) -> str:
+        """What PX4 did since ``since_ns``: modes, landed states, height, words, console."""
+        gcs = self.gcs
+        assert gcs is not None
+        modes: list[str] = []
+        for beat in gcs.of_type("HEARTBEAT", since_ns):
+            if not gcs.from_autopilot(beat):
+                continue
+            name = str(mavutil.interpret_px4_mode(beat.base_mode, beat.custom_mode))
+            name += " armed" if beat.base_mode & mav.MAV_MODE_FLAG_SAFETY_ARMED else " disarmed"
+            if not modes or modes[-1] != name:
+                modes.append(name)
+        landed: list[str] = []
+        for state in gcs.of_type("EXTENDED_SYS_STATE", since_ns):
+            name = _LANDED.get(int(state.landed_state), str(state.landed_state))
+            if not landed or landed[-1] != name:
+                landed.append(name)
+        heights_m = [m.relative_alt / 1000.0 for m in gcs.of_type("GLOBAL_POSITION_INT", since_ns)]
+        height = (
+            f"height above home at most {max(heights_m):.2f} m, last {heights_m[-1]:.2f} m"
+            if heights_m
+            else "no GLOBAL_POSITION_INT"
+        )
+        return (
+            f"modes {' > '.join(modes)}; landed states {' > '.join(landed) or 'none'}; "
+            f"{height}; it said {self._said(since_ns)}; console {self.console_tail(8)}"
+        )
 
     async def _kill(self) -> None:
         process = self.process

@@ -54,7 +54,8 @@ from avoidd.vision.calibration import Calibration
 logger = logging.getLogger(__name__)
 
 _STICK_RATE_HZ = 20.0
-_NAV_TAKEOFF = 22
+TAKEOFF_HEIGHT_M = 2.0
+"""Height above home that counts as taken off (PX4 climbs to MIS_TAKEOFF_ALT, 2.5 m)."""
 _FACING_DEG = 3.0
 """Push: the nose is north within this many degrees before the stick goes forward."""
 _YAW_STICK_DEAD = 120.0
@@ -214,26 +215,10 @@ class Px4Run(ExternalRun):
     async def _fly_px4(self, gcs: GroundStation, sitl: Px4Sitl) -> None:
         self.estimator_s = await sitl.wait_estimator(120.0)
         await self._wait_ready(60.0)
-        # A take-off that never leaves the ground is tried again (seen now and then, idle and
-        # under load: accepted, TAKEOFF mode, no climb, or stuck at 0.3 m where PX4 denies a
-        # disarm as "not landed": the retry disarms by force, the vehicle being simulated).
-        for attempt in range(3):
-            if not await gcs.arm(retry_s=60.0):
-                raise LinkError("PX4 would not arm within 60 s")
-            await self._take_off_px4(gcs)
-            # Take-off done: PX4 holds (LOITER), or is near the height above home. Not
-            # LOCAL_POSITION_NED's height: the estimator's origin sits up to 2 m off the ground
-            # here (its height drifts while it settles).
-            await self._wait_mode("TAKEOFF", 10.0)
-            try:
-                await self._wait_climbed(gcs, self.goal[2] - 0.4, 30.0)
-                break
-            except LinkError:
-                if attempt == 2:
-                    raise
-                logger.warning("PX4 did not climb; disarming, arming and taking off again")
-                await gcs.disarm_to_retry()
-                await asyncio.sleep(2.0)  # down and still before arming again
+        # Taken off: 2 m above home (MIS_TAKEOFF_ALT is 2.5 m). Not LOCAL_POSITION_NED's
+        # height: the estimator's origin sits up to 2 m off the ground here (its height drifts
+        # while it settles).
+        await sitl.take_off(TAKEOFF_HEIGHT_M)
         assert self.daemon is not None
         self.home_up_m = self.daemon.vehicle.home_up_m or 0.0
         if self.mode == "planner":
@@ -349,47 +334,6 @@ class Px4Run(ExternalRun):
             if daemon.sent["OBSTACLE_DISTANCE"] >= sent + 5:
                 return
         raise LinkError(f"avoidd sent no proximity data within {timeout_s:.0f} s")
-
-    async def _take_off_px4(self, gcs: GroundStation) -> None:
-        """NAV_TAKEOFF with every position parameter NaN: here, to ``MIS_TAKEOFF_ALT``.
-
-        PX4 reads params 5-7 as latitude, longitude and altitude above sea level, and takes
-        zeros literally: a take-off to 0 N 0 E stays on the ground (seen).
-        """
-        nan = math.nan
-        deadline = time.monotonic() + 20.0
-        result: int | None = None
-        while time.monotonic() < deadline:
-            result = await gcs.command(_NAV_TAKEOFF, -1, 0, 0, nan, nan, nan, nan)
-            if result == mav.MAV_RESULT_ACCEPTED:
-                return
-            await asyncio.sleep(1.0)
-        said = [m.text for m in gcs.of_type("STATUSTEXT")][-5:]
-        raise LinkError(f"PX4 refused to take off (MAV_RESULT {result}; it said {said})")
-
-    async def _wait_climbed(self, gcs: GroundStation, height_m: float, timeout_s: float) -> None:
-        """Until PX4 holds after take-off or is ``height_m`` above home."""
-        daemon = self.daemon
-        assert daemon is not None
-        deadline = time.monotonic() + timeout_s
-        height = math.nan
-        while time.monotonic() < deadline:
-            mode = daemon.vehicle.mode
-            if mode is not None and mode.name == "LOITER":
-                return
-            report = await gcs.next_message(
-                lambda m: m.get_type() == "GLOBAL_POSITION_INT" and gcs.from_autopilot(m), 1.0
-            )
-            if report is not None:
-                height = report.relative_alt / 1000.0
-                if height >= height_m:
-                    return
-        mode = daemon.vehicle.mode
-        said = [m.text for m in gcs.of_type("STATUSTEXT")][-4:]
-        raise LinkError(
-            f"PX4 did not climb to {height_m:.1f} m in {timeout_s:.0f} s ({height:.1f} m, "
-            f"mode {mode and mode.name}, it said {said})"
-        )
 
     async def _wait_mode(self, name: str, timeout_s: float) -> float:
         """Until avoidd's link decodes PX4's mode as ``name``; seconds waited."""
