@@ -1,4 +1,4 @@
-"""The external-SITL runner's flight samples: the window a failed flight shows."""
+"""The external-SITL runners: a failed flight's window, the renderer they lend, their clean-up."""
 
 from __future__ import annotations
 
@@ -7,10 +7,12 @@ import itertools
 import os
 import signal
 from pathlib import Path
+from typing import ClassVar
 
 import pytest
 
 from avoidd.config.sim import load_scenario
+from avoidd.daemon import Daemon
 from avoidd.errors import LinkError, SourceError
 from avoidd.sim.external import (
     ExternalRun,
@@ -19,7 +21,8 @@ from avoidd.sim.external import (
     window_around_minimum,
 )
 from avoidd.sim.lockstep import RIGS
-from tests.helpers import REPO
+from avoidd.sim.px4_run import Px4Run
+from tests.helpers import REPO, free_udp_port
 
 
 def _flight() -> list[Sample]:
@@ -112,3 +115,65 @@ def test_a_run_lends_one_renderer_and_replaces_it_once_broken(tmp_path: Path) ->
     finally:
         run._close_renderer()
     assert run._renderer is None and replacement.broken
+
+
+class _Sitl:
+    """The autopilot's edge: a SITL that starts at once and counts its stops."""
+
+    made: ClassVar[list[_Sitl]] = []
+
+    def __init__(self, *args: object, **kwargs: object) -> None:
+        self.stops = 0
+        _Sitl.made.append(self)
+
+    async def start(self, timeout_s: float = 30.0) -> _Gcs:
+        return _Gcs()
+
+    async def stop(self) -> None:
+        self.stops += 1
+
+
+class _Gcs:
+    sent = 0
+    longest_gap_s = 0.0
+
+    def sticks(self, *args: object, **kwargs: object) -> _Gcs:
+        return self
+
+    def stop(self) -> None:
+        pass
+
+
+@pytest.mark.parametrize("autopilot", ["ardupilot", "px4"])
+async def test_sitl_stops_even_when_the_daemons_stop_is_cancelled(
+    autopilot: str, monkeypatch: pytest.MonkeyPatch, tmp_path: Path
+) -> None:
+    """A flight fails and the daemon's stop is then cancelled (a test's timeout): the camera's
+    renderer and the SITL process still stop, so no process keeps the autopilot's ports."""
+    real_stop = Daemon.stop_and_wait
+
+    async def stop_then_cancelled(
+        self: Daemon, task: asyncio.Task[int], timeout_s: float = 30.0
+    ) -> int | None:
+        await real_stop(self, task, timeout_s)
+        raise asyncio.CancelledError
+
+    async def flight_fails(*args: object) -> None:
+        raise LinkError("the vehicle would not arm")
+
+    monkeypatch.setattr(Daemon, "stop_and_wait", stop_then_cancelled)
+    _Sitl.made.clear()
+    run: ExternalRun
+    if autopilot == "px4":
+        monkeypatch.setattr("avoidd.sim.px4_run.Px4Sitl", _Sitl)
+        run = Px4Run(load_scenario(REPO / "sitl" / "px4" / "wall-around.yaml"), tmp_path)
+        monkeypatch.setattr(run, "_fly_px4", flight_fails)
+    else:
+        monkeypatch.setattr("avoidd.sim.external.ArduPilotSitl", _Sitl)
+        run = ExternalRun(load_scenario(REPO / "sitl" / "ardupilot" / "wall-around.yaml"), tmp_path)
+        monkeypatch.setattr(run, "_fly", flight_fails)
+    run._lent_renderer(RIGS["320x240"])  # the camera's renderer is running
+    with pytest.raises(asyncio.CancelledError):
+        await run.run(free_udp_port() if autopilot == "ardupilot" else 14540)
+    assert [sitl.stops for sitl in _Sitl.made] == [1]
+    assert run._renderer is None

@@ -342,13 +342,17 @@ class ExternalRun:
             ended = exc
             raise
         finally:
+            # SITL stops whatever happens before (a stop cancelled or failing): its process
+            # and ports must not outlive the run.
             try:
-                if task is not None:
-                    await daemon.stop_and_wait(task)
+                try:
+                    if task is not None:
+                        await daemon.stop_and_wait(task)
+                finally:
+                    await asyncio.to_thread(self._close_renderer)
+                self._wind_up(ended)
             finally:
-                await asyncio.to_thread(self._close_renderer)
-            self._wind_up(ended)
-            await sitl.stop()
+                await sitl.stop()
         self._judge()
         return self.summary
 

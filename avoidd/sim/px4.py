@@ -205,7 +205,7 @@ class Px4Sitl:
             return []
         # Its lines carry colour codes for a terminal; drop them.
         clean = re.sub(r"\x1b\[[0-9;]*m", "", text)
-        return [line for line in clean.splitlines() if line.strip()][-lines:]
+        return [line.strip() for line in clean.splitlines() if line.strip()][-lines:]
 
     async def restart(self, timeout_s: float = 30.0) -> None:
         """Kill the process and start a fresh one (new work folder); the GCS stays open."""

@@ -54,8 +54,8 @@ from avoidd.vision.calibration import Calibration
 logger = logging.getLogger(__name__)
 
 _STICK_RATE_HZ = 20.0
-TAKEOFF_HEIGHT_M = 2.0
-"""Height above home that counts as taken off (PX4 climbs to MIS_TAKEOFF_ALT, 2.5 m)."""
+_TAKEN_OFF = 0.8
+"""Share of the take-off height (MIS_TAKEOFF_ALT, the goal's) that counts as taken off."""
 _FACING_DEG = 3.0
 """Push: the nose is north within this many degrees before the stick goes forward."""
 _YAW_STICK_DEAD = 120.0
@@ -158,13 +158,17 @@ class Px4Run(ExternalRun):
                     self.sticks.sent,
                     self.sticks.longest_gap_s,
                 )
+            # PX4 stops whatever happens before (a stop cancelled or failing): its process
+            # and fixed ports must not outlive the run.
             try:
-                if task is not None:
-                    await daemon.stop_and_wait(task)
+                try:
+                    if task is not None:
+                        await daemon.stop_and_wait(task)
+                finally:
+                    await asyncio.to_thread(self._close_renderer)
+                self._wind_up(ended)
             finally:
-                await asyncio.to_thread(self._close_renderer)
-            self._wind_up(ended)
-            await sitl.stop()
+                await sitl.stop()
         self._judge()
         return self.summary
 
@@ -215,10 +219,10 @@ class Px4Run(ExternalRun):
     async def _fly_px4(self, gcs: GroundStation, sitl: Px4Sitl) -> None:
         self.estimator_s = await sitl.wait_estimator(120.0)
         await self._wait_ready(60.0)
-        # Taken off: 2 m above home (MIS_TAKEOFF_ALT is 2.5 m). Not LOCAL_POSITION_NED's
+        # Taken off: most of the way to MIS_TAKEOFF_ALT above home. Not LOCAL_POSITION_NED's
         # height: the estimator's origin sits up to 2 m off the ground here (its height drifts
         # while it settles).
-        await sitl.take_off(TAKEOFF_HEIGHT_M)
+        await sitl.take_off(_TAKEN_OFF * float(self.params["MIS_TAKEOFF_ALT"]))
         assert self.daemon is not None
         self.home_up_m = self.daemon.vehicle.home_up_m or 0.0
         if self.mode == "planner":
