@@ -27,7 +27,7 @@ import time
 from collections.abc import Coroutine
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any, Literal
+from typing import Any, Literal, Protocol
 
 from avoidd.config import AppConfig
 from avoidd.config.sim import GeneratedWorldConfig, ScenarioConfig, load_world
@@ -265,6 +265,13 @@ def daemon_config(
     )
 
 
+class Stoppable(Protocol):
+    """A SITL process the run ends (ArduPilot's or PX4's)."""
+
+    async def stop(self) -> None:
+        """End the process and release what it holds."""
+
+
 class ExternalRun:
     """One scenario against a real ArduCopter SITL.
 
@@ -342,19 +349,31 @@ class ExternalRun:
             ended = exc
             raise
         finally:
-            # SITL stops whatever happens before (a stop cancelled or failing): its process
-            # and ports must not outlive the run.
-            try:
-                try:
-                    if task is not None:
-                        await daemon.stop_and_wait(task)
-                finally:
-                    await asyncio.to_thread(self._close_renderer)
-                self._wind_up(ended)
-            finally:
-                await sitl.stop()
+            await self._end(daemon, task, sitl, ended)
         self._judge()
         return self.summary
+
+    async def _end(
+        self,
+        daemon: Daemon,
+        task: asyncio.Task[int] | None,
+        sitl: Stoppable,
+        ended: BaseException | None,
+    ) -> None:
+        """Stop avoidd, the camera's renderer and SITL, SITL whatever happens before.
+
+        A stop that is cancelled (a test's timeout) or a wind-up that fails must not leave the
+        SITL process running: it would keep the autopilot's ports from the next run.
+        """
+        try:
+            try:
+                if task is not None:
+                    await daemon.stop_and_wait(task)
+            finally:
+                await asyncio.to_thread(self._close_renderer)
+            self._wind_up(ended)
+        finally:
+            await sitl.stop()
 
     def _camera(
         self,

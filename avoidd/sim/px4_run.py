@@ -158,17 +158,7 @@ class Px4Run(ExternalRun):
                     self.sticks.sent,
                     self.sticks.longest_gap_s,
                 )
-            # PX4 stops whatever happens before (a stop cancelled or failing): its process
-            # and fixed ports must not outlive the run.
-            try:
-                try:
-                    if task is not None:
-                        await daemon.stop_and_wait(task)
-                finally:
-                    await asyncio.to_thread(self._close_renderer)
-                self._wind_up(ended)
-            finally:
-                await sitl.stop()
+            await self._end(daemon, task, sitl, ended)
         self._judge()
         return self.summary
 
