@@ -456,8 +456,8 @@ def test_a_way_on_closed_for_a_frame_brakes_and_backing_out_keeps_the_side() -> 
     # Going north past a wall on the goal's side (the goal is 60 degrees right). Frames that
     # show everything ahead closed make the vehicle brake (no way back chosen on one frame's
     # word: the setpoint asks for the vehicle's speed back, less the overspeed slack, and
-    # nothing beyond); closed for 0.3 s, it backs out; when the way north opens again it goes
-    # on north, not back (backing out left the commitment as it was).
+    # nothing beyond but the back-away); closed for 0.3 s, it backs out; when the way north
+    # opens again it goes on north, not back (backing out left the commitment as it was).
     planner = _planner(unknown="free", memory_s=0.0)
     goal = Goal(15.0, 26.0, 2.0)
     right_wall = {i: 2.6 for i in range(9, 25)}  # closes the goal's way, not north
@@ -475,7 +475,11 @@ def test_a_way_on_closed_for_a_frame_brakes_and_backing_out_keeps_the_side() -> 
     assert north <= 15.0 and north_again <= 15.0 and back >= 100.0, ways
     for decision in braking:
         assert decision.direction_deg is None
-        assert decision.velocity_ned[:2] == pytest.approx((-(1.0 - 0.25), 0.0))
+        # The brake, and the back-away from what the closed frames put within the clearance
+        # (a few mm/s here) on top: braking never cancels it.
+        north_m_s, east_m_s = decision.velocity_ned[:2]
+        assert -(1.0 - 0.25) - 0.01 <= north_m_s <= -(1.0 - 0.25)
+        assert east_m_s == pytest.approx(0.0, abs=0.01)
 
 
 def test_a_corridor_wide_enough_at_walking_pace_stays_open_along_it_at_full_speed() -> None:

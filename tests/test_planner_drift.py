@@ -16,6 +16,7 @@ from avoidd.planner.core import (
     Goal,
     Planner,
     Pose,
+    brake_closing,
     drift_speed_limit_m_s,
     stopping_speed_m_s,
 )
@@ -184,6 +185,56 @@ def test_drifting_toward_a_wall_slows_the_vehicle_along_it() -> None:
     assert free.velocity_ned[1] == pytest.approx(2.0, abs=1e-6)
 
 
+def test_closing_on_a_wall_flown_along_faster_than_the_plan_is_asked_back() -> None:
+    # The autopilot's own report says it closes on the wall 2 m north at 0.4 m/s (its
+    # positions agree, so this is no drift) while the plan flies east along it: 0.4 less 0.1
+    # of noise is asked back, south.
+    goal = Goal(0.0, 30.0, 2.0)
+    following = _planner_by_a_wall(2.0).decide(S, _pose((0.0, 1.5)), goal, fresh=True)
+    closing = _planner_by_a_wall(2.0).decide(
+        S, _pose((0.4, 1.5), reported=(0.4, 1.5)), goal, fresh=True
+    )
+    assert following.state == closing.state == "moving"
+    lean = closing.velocity_ned[0] - following.velocity_ned[0]
+    assert lean == pytest.approx(-0.3, abs=0.02)
+    assert math.hypot(*closing.velocity_ned[:2]) <= 2.0 + 1e-9
+    # No wall near: the same sideways speed is the autopilot's business.
+    free = _planner_by_a_wall(20.0).decide(
+        S, _pose((0.4, 1.5), reported=(0.4, 1.5)), goal, fresh=True
+    )
+    assert free.velocity_ned[0] == pytest.approx(following.velocity_ned[0], abs=1e-6)
+
+
+def test_the_closing_brake_asks_only_the_excess_and_only_away() -> None:
+    north = 0.0  # the near side's bearing: the wall is north
+    pose = Pose(S, 0.0, 0.0, -2.0, 0.0, 0.5, 1.0)  # closing at 0.5 m/s
+    # The plan wants 0.5 m/s that way (approaching, slowed by the speed law): no excess; at
+    # 0.3 the 0.2 is the lag of braking (within the overspeed brake's 0.25 slack).
+    assert brake_closing((0.5, 1.0), (0.5, 1.0), pose, north, 2.0) == (0.5, 1.0)
+    assert brake_closing((0.3, 1.0), (0.3, 1.0), pose, north, 2.0) == (0.3, 1.0)
+    # Along the wall: 0.5 too fast that way, less 0.1 of noise.
+    assert brake_closing((0.0, 1.0), (0.0, 1.0), pose, north, 2.0) == pytest.approx((-0.4, 1.0))
+    # In between the slack grows with the speed wanted: 0.2 wanted, slack 0.1 + 0.8 * 0.15.
+    assert brake_closing((0.2, 1.0), (0.2, 1.0), pose, north, 2.0) == pytest.approx((0.12, 1.0))
+    # What an earlier brake already asks back that way counts.
+    assert brake_closing((-0.4, 1.0), (0.0, 1.0), pose, north, 2.0) == (-0.4, 1.0)
+    # Moving away, or within the noise: nothing.
+    away = Pose(S, 0.0, 0.0, -2.0, 0.0, -0.5, 1.0)
+    assert brake_closing((0.0, 1.0), (0.0, 1.0), away, north, 2.0) == (0.0, 1.0)
+    slow = Pose(S, 0.0, 0.0, -2.0, 0.0, 0.08, 1.0)
+    assert brake_closing((0.0, 1.0), (0.0, 1.0), slow, north, 2.0) == (0.0, 1.0)
+    rng = np.random.default_rng(3)
+    for _ in range(300):
+        side = float(rng.uniform(-math.pi, math.pi))
+        unit = np.array((math.cos(side), math.sin(side)))
+        plan = (float(rng.uniform(-1.5, 1.5)), float(rng.uniform(-1.5, 1.5)))
+        vehicle = Pose(S, 0.0, 0.0, -2.0, 0.0, float(rng.uniform(-2, 2)), float(rng.uniform(-2, 2)))
+        command = brake_closing(plan, plan, vehicle, side, 2.0)
+        # Never more toward the side than the plan, never beyond the maximum speed.
+        assert float(np.array(command) @ unit) <= float(np.array(plan) @ unit) + 1e-9
+        assert math.hypot(*command) <= max(2.0, math.hypot(*plan)) + 1e-9
+
+
 def test_the_drift_speed_limit_falls_with_the_drift_to_a_floor() -> None:
     assert drift_speed_limit_m_s(0.0, 2.0) == 2.0
     limits = [drift_speed_limit_m_s(d, 2.0) for d in np.linspace(0.0, 3.0, 61)]
@@ -269,3 +320,18 @@ def test_the_vehicle_keeps_the_reported_positions_for_the_track() -> None:
     assert len(vehicle.positions) == 20
     feed(sender.build("LOCAL_POSITION_NED", 100, 0.0, 0.0, -2.0, 0.0, 1.5, 0.0), 6000)
     assert len(vehicle.positions) == 1 and track_velocity_ne(vehicle.positions.reports) is None
+
+
+def test_braking_to_turn_back_never_pushes_toward_a_wall_it_backs_away_from() -> None:
+    # Backing away south-west at 0.85 m/s from a wall 1.4 m north (inside the clearance),
+    # the vehicle is told to go east (the goal's way): that turns it back on itself, so it
+    # brakes first. The brake may not point north, toward the wall, and the back-away stays.
+    planner = _planner_by_a_wall(1.4)
+    inside = planner.clearance_m - 1.4
+    assert inside > 0.1
+    pose = Pose(S, 0.0, 0.0, -2.0, 0.0, -0.6, -0.6, (-0.6, -0.6))
+    backing = planner.back_away_m_s(pose)
+    assert backing[0] < 0.0
+    decision = planner.decide(S, pose, Goal(-0.5, 30.0, 2.0), fresh=True)
+    assert decision.state == "moving"
+    assert decision.velocity_ned[0] <= backing[0] + 1e-9, decision

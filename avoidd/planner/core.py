@@ -100,6 +100,9 @@ the clearance."""
 _DRIFT_SLACK_M_S = 0.1
 """Disagreement between the track and the reported velocity up to this is noise (see
 :meth:`Planner.drift_back_m_s`)."""
+_CLOSING_RAMP_M_S = 0.25
+"""Over this much planned speed toward a near side the closing brake's slack grows from the
+drift's noise to the overspeed brake's (see :func:`brake_closing`)."""
 _DRIFT_JUMP_M_S = 1.5
 """A disagreement between the track and the reported velocity beyond this is a position reset
 (a jump fitted as a speed), not a drift: a hold sends nothing for it."""
@@ -417,6 +420,17 @@ class Planner:
         speed = min(_BACK_AWAY_MAX_M_S, _BACK_AWAY_GAIN * inside_m)
         return (-speed * math.cos(toward), -speed * math.sin(toward))
 
+    def near_side_rad(self, pose: Pose) -> float | None:
+        """The bearing of the side remembered obstacles near the vehicle are on.
+
+        Near: within the clearance plus :data:`_DRIFT_BAND_M`, all on one side (None when
+        there are none, or they surround the vehicle as a narrow corridor's walls do).
+        """
+        offsets, ranges_m = self.memory.near((pose.north_m, pose.east_m))
+        if not offsets.size:
+            return None
+        return self._side_within(offsets, ranges_m, self.clearance_m + _DRIFT_BAND_M)
+
     def drift_back_m_s(self, pose: Pose) -> tuple[float, float]:
         """A velocity (north, east) that cancels the drift toward a near obstacle.
 
@@ -440,10 +454,7 @@ class Planner:
         """
         if pose.track_ne_m_s is None:
             return (0.0, 0.0)
-        offsets, ranges_m = self.memory.near((pose.north_m, pose.east_m))
-        if not offsets.size:
-            return (0.0, 0.0)
-        toward = self._side_within(offsets, ranges_m, self.clearance_m + _DRIFT_BAND_M)
+        toward = self.near_side_rad(pose)
         if toward is None:
             return (0.0, 0.0)
         side_n, side_e = math.cos(toward), math.sin(toward)
@@ -600,6 +611,9 @@ class Planner:
             if self._side and side != self._side:
                 self._side_changes += 1
             self._side = side
+        drifting = self.drift_back_m_s(pose)
+        backing = self.back_away_m_s(pose)
+        away = (backing[0] + drifting[0], backing[1] + drifting[1])
         moving_m_s = math.hypot(pose.north_m_s, pose.east_m_s)
         if moving_m_s > _TURN_BACK_M_S and abs(float(wrap_rad(chosen - along))) > _TURN_BACK_RAD:
             # The way chosen turns the vehicle back on itself (every way on looks closed):
@@ -610,12 +624,15 @@ class Planner:
             if now_ns - self._back_since_ns < _BACK_OUT_AFTER_NS:
                 # A vehicle that outruns the zero it is asked for is asked for the excess
                 # back, as on any plan (PX4 braked from 1.6 m/s at about 1.2 m/s^2 on a zero).
-                north, east = brake_overspeed((0.0, 0.0), (0.0, 0.0), pose, config.max_speed_m_s)
+                # The back-away and the drift correction stay, and no braking goes against
+                # them: a vehicle backing away from a wall inside its clearance was braked
+                # back toward it (PX4 SITL under load, edge 0.85 m).
+                held = _with_back_away((0.0, 0.0), away, config.max_speed_m_s)
+                north, east = brake_overspeed(held, away, pose, config.max_speed_m_s)
                 return Decision((north, east, vertical), 0.0, "moving", goal_distance_m=goal_m)
         else:
             self._back_since_ns = None
         self._previous_rad = chosen
-        drifting = self.drift_back_m_s(pose)
         speed = min(
             config.max_speed_m_s,
             stopping_speed_m_s(chosen_free, config.max_accel_m_s2, self._latency_s(now_ns)),
@@ -637,12 +654,16 @@ class Planner:
         off_rad = abs(turned_rad - self._view_offset_rad(turned_rad))
         speed *= 0.5 + 0.5 * max(0.0, math.cos(off_rad))
         yaw_rate = self._yaw_rate(float(wrap_rad(look - pose.yaw_rad)))
-        backing = self.back_away_m_s(pose)
-        away = (backing[0] + drifting[0], backing[1] + drifting[1])
         north, east = _with_back_away(
             (speed * math.cos(chosen), speed * math.sin(chosen)), away, config.max_speed_m_s
         )
-        north, east = brake_overspeed((north, east), away, pose, config.max_speed_m_s)
+        planned = (north, east)
+        north, east = brake_overspeed(planned, away, pose, config.max_speed_m_s)
+        near_side = self.near_side_rad(pose)
+        if near_side is not None:
+            north, east = brake_closing(
+                (north, east), planned, pose, near_side, config.max_speed_m_s
+            )
         velocity = (north, east, vertical)
         return Decision(
             velocity,
@@ -891,6 +912,55 @@ def brake_overspeed(
         (float(correction[0]), float(correction[1])), planned_m_s, max_speed_m_s
     )
     return (north, east)
+
+
+def brake_closing(
+    command_m_s: tuple[float, float],
+    planned_m_s: tuple[float, float],
+    pose: Pose,
+    side_rad: float,
+    max_speed_m_s: float,
+) -> tuple[float, float]:
+    """The command with the vehicle's excess speed toward a near side asked back.
+
+    :func:`brake_overspeed` looks along the vehicle's own direction of travel. Flying along a
+    wall, PX4 SITL also kept closing on it sideways at 0.1-0.2 m/s for two seconds while the
+    plan asked 0.1-0.3 m/s away (its velocity loop winding down from braking for the wall
+    before the turn): its own velocity report showed it, so the drift check, which compares
+    the positions with that report, did not, and the edge came 0.6 m nearer than the plan's.
+    Here the part of the reported velocity toward the near side beyond what the plan wants
+    that way (none when the plan points away), less a slack and whatever the command already
+    asks back that way, is asked back, up to :data:`_BACK_AWAY_MAX_M_S`. The slack is
+    :data:`_DRIFT_SLACK_M_S` of noise when the plan flies along or away from the side, and
+    grows to the overspeed brake's :data:`_OVERSPEED_SLACK_M_S` over the first
+    :data:`_CLOSING_RAMP_M_S` the plan wants toward it (braking head-on, a vehicle following
+    its setpoint lags it that much). It only ever points away from the side: it costs pace,
+    never margin.
+
+    Args:
+        command_m_s: The velocity to command so far (north, east).
+        planned_m_s: The plan before any braking (back-away included).
+        pose: The vehicle's state (its reported velocity).
+        side_rad: Bearing of the near side (see :meth:`Planner.near_side_rad`).
+        max_speed_m_s: The setpoint's speed stays within this.
+
+    Returns:
+        The velocity to command (north, east).
+    """
+    side = np.array((math.cos(side_rad), math.sin(side_rad)))
+    closing_m_s = float(np.array((pose.north_m_s, pose.east_m_s)) @ side)
+    wanted_m_s = max(0.0, float(np.array(planned_m_s) @ side))
+    asked_back_m_s = max(0.0, float((np.array(planned_m_s) - np.array(command_m_s)) @ side))
+    # Approaching as planned (the speed law braking for it), a vehicle that follows its
+    # setpoint lags it by up to the overspeed brake's slack; flying along or away, by no
+    # more than noise. In between, the slack grows with the speed wanted toward the side.
+    share = min(1.0, wanted_m_s / _CLOSING_RAMP_M_S)
+    slack_m_s = _DRIFT_SLACK_M_S + share * (_OVERSPEED_SLACK_M_S - _DRIFT_SLACK_M_S)
+    excess_m_s = closing_m_s - wanted_m_s - slack_m_s - asked_back_m_s
+    if excess_m_s <= 0.0:
+        return command_m_s
+    back = -min(excess_m_s, _BACK_AWAY_MAX_M_S) * side
+    return _with_back_away(command_m_s, (float(back[0]), float(back[1])), max_speed_m_s)
 
 
 def _unit(vector: tuple[float, float]) -> np.ndarray | None:
