@@ -335,3 +335,17 @@ def test_braking_to_turn_back_never_pushes_toward_a_wall_it_backs_away_from() ->
     decision = planner.decide(S, pose, Goal(-0.5, 30.0, 2.0), fresh=True)
     assert decision.state == "moving"
     assert decision.velocity_ned[0] <= backing[0] + 1e-9, decision
+
+
+def test_braking_to_turn_back_head_on_inside_the_clearance_keeps_the_whole_brake() -> None:
+    # Flying north at 1.5 m/s at a wall 1.4 m ahead (inside the clearance), told to go back
+    # south-east (the goal's way): it brakes first. The brake asks the speed back less the
+    # 0.25 m/s slack, and the back-away comes on top; neither cancels the other.
+    planner = _planner_by_a_wall(1.4)
+    pose = Pose(S, 0.0, 0.0, -2.0, 0.0, 1.5, 0.0, (1.5, 0.0))
+    backing = planner.back_away_m_s(pose)
+    assert backing[0] < 0.0
+    decision = planner.decide(S, pose, Goal(-30.0, 5.0, 2.0), fresh=True)
+    assert decision.state == "moving" and decision.direction_deg is None
+    assert decision.velocity_ned[0] <= -(1.5 - 0.25) + backing[0] + 1e-9, decision
+    assert decision.velocity_ned[1] == pytest.approx(0.0, abs=1e-9)

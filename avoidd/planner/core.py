@@ -627,8 +627,8 @@ class Planner:
                 # The back-away and the drift correction stay, and no braking goes against
                 # them: a vehicle backing away from a wall inside its clearance was braked
                 # back toward it (PX4 SITL under load, edge 0.85 m).
-                held = _with_back_away((0.0, 0.0), away, config.max_speed_m_s)
-                north, east = brake_overspeed(held, away, pose, config.max_speed_m_s)
+                brake = brake_overspeed((0.0, 0.0), away, pose, config.max_speed_m_s)
+                north, east = _with_back_away(brake, away, config.max_speed_m_s)
                 return Decision((north, east, vertical), 0.0, "moving", goal_distance_m=goal_m)
         else:
             self._back_since_ns = None

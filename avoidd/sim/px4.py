@@ -294,7 +294,9 @@ class Px4Sitl:
             stories.append(story)
             logger.warning("PX4 did not climb to %.1f m: %s", height_m, story)
             if attempt < tries - 1:
-                await gcs.disarm_to_retry()
+                disarmed = await gcs.disarm_to_retry()
+                if disarmed != mav.MAV_RESULT_ACCEPTED:
+                    logger.warning("PX4 SITL: forced disarm answered %s; arming again", disarmed)
                 await asyncio.sleep(2.0)  # down and still before arming again
         raise LinkError(
             f"PX4 did not climb to {height_m:.1f} m in {tries} tries: " + "; ".join(stories)

@@ -151,14 +151,16 @@ class Px4Run(ExternalRun):
             ended = exc
             raise
         finally:
-            if self.sticks is not None:
-                self.sticks.stop()
-                logger.info(
-                    "sticks: %d MANUAL_CONTROL sent, longest gap %.2f s",
-                    self.sticks.sent,
-                    self.sticks.longest_gap_s,
-                )
-            await self._end(daemon, task, sitl, ended)
+            try:
+                if self.sticks is not None:
+                    self.sticks.stop()
+                    logger.info(
+                        "sticks: %d MANUAL_CONTROL sent, longest gap %.2f s",
+                        self.sticks.sent,
+                        self.sticks.longest_gap_s,
+                    )
+            finally:
+                await self._end(daemon, task, sitl, ended)
         self._judge()
         return self.summary
 
