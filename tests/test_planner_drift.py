@@ -349,3 +349,37 @@ def test_braking_to_turn_back_head_on_inside_the_clearance_keeps_the_whole_brake
     assert decision.state == "moving" and decision.direction_deg is None
     assert decision.velocity_ned[0] <= -(1.5 - 0.25) + backing[0] + 1e-9, decision
     assert decision.velocity_ned[1] == pytest.approx(0.0, abs=1e-9)
+
+
+def test_holds_inside_the_clearance_back_away_and_add_the_drift_correction() -> None:
+    # PX4 SITL under load: holds on frames just over max_age_ms flickered with moves, and
+    # holds that sent only the drift correction halved the back-away PX4 saw (edge 1.1 m ->
+    # 0.35 m). Inside the clearance a hold backs away as a move does.
+    probe = _planner_by_a_wall(2.0)
+    wall_m = probe.clearance_m - 0.3  # 0.25 m inside, beyond the 5 cm slack
+    expected_back = min(0.75, 2.0 * 0.25)
+    for state in ("stale", "no path", "dead end"):
+        planner = _planner_by_a_wall(wall_m)
+        # No track known: the back-away alone.
+        held = planner.hold(state, 30.0, _pose(None, reported=(0.0, 0.0)))
+        assert held.velocity_ned[:2] == pytest.approx((-expected_back, 0.0), abs=1e-6)
+        assert held.yaw_rate_rad_s == 0.0
+        # Positions closing at 0.5 m/s, reported still: both, added.
+        drifting = planner.hold(state, 30.0, _pose((0.5, 0.0), reported=(0.0, 0.0)))
+        assert drifting.velocity_ned[:2] == pytest.approx((-expected_back - 0.4, 0.0), abs=1e-6)
+    # A stale decision holds the same way.
+    stale = _planner_by_a_wall(wall_m).decide(
+        S, _pose(None, reported=(0.0, 0.0)), Goal(0.0, 30.0, 2.0), fresh=False
+    )
+    assert stale.state == "stale"
+    assert stale.velocity_ned[:2] == pytest.approx((-expected_back, 0.0), abs=1e-6)
+    # Walls on both sides nearer than the clearance (a corridor): no side to back away
+    # from, and nothing is sent either way.
+    corridor = _planner_by_a_wall(wall_m, both_sides=True)
+    assert corridor.hold("stale", 30.0, _pose(None, reported=(0.0, 0.0))).velocity_ned == (
+        0.0,
+        0.0,
+        0.0,
+    )
+    # Outside the clearance (the wall 2 m away) and no drift: a plain zero, as before.
+    assert _planner_by_a_wall(2.0).hold("stale", 30.0, _pose(None, reported=(0.0, 0.0))).holding

@@ -54,6 +54,11 @@ def test_a_sample_describes_where_how_fast_and_what_the_planner_wanted() -> None
     assert "v +1.00 +0.00" in line and "set +1.20 +0.00" in line and "moving" in line
     bare = Sample(1.0, 0.0, 0.0, 2.5, 0.0, 3.0).describe()
     assert "set" not in bare and "None" in bare
+    assert "track" not in bare and "side" not in bare
+    seen = Sample(
+        1.0, 0.0, 0.0, 2.5, 0.0, 0.6, (0.0, 0.3), "stale", (-0.3, 0.0), None, (0.42, 0.31), -4.4
+    ).describe()
+    assert "track +0.42 +0.31" in seen and "near side -4 deg" in seen
 
 
 async def _daemon(stop_after_s: float, code: int = 0) -> int:

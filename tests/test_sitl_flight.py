@@ -54,3 +54,7 @@ async def test_avoidd_flies_guided_round_a_wall_to_its_goal(sitl_dir: Path) -> N
     assert summary.passed, summary.as_json()
     # It went round an end of the wall (12 m wide, from east -6 to 6), not through it.
     assert max(abs(sample.east_m) for sample in summary.samples) > 6.0
+    # The samples carry the planner's view: the positions' velocity and the wall's side.
+    tracked = [s for s in summary.samples if s.track_ne_m_s is not None]
+    assert len(tracked) >= 0.8 * len(summary.samples), summary.as_json()
+    assert any(s.near_side_deg is not None for s in summary.samples), summary.as_json()

@@ -110,6 +110,8 @@ class AvoidanceLoop:
         self.history: deque[tuple[int, str]] = deque(maxlen=_HISTORY)
         """The latest state changes, oldest first: (``time.monotonic_ns()``, new state)."""
         self.last_decision: Decision | None = None
+        self.last_pose: Pose | None = None
+        """The vehicle's state the last decision was made with (None: none known)."""
         self._switched_off_ns = -(10**18)
         self._was_setpoint_mode = False
         self._mode_seen = False
@@ -186,6 +188,7 @@ class AvoidanceLoop:
             if at_capture is not None:
                 self.planner.observe_scan(scan.distance_m, scan.t_capture_ns, at_capture)
         pose = self._pose(now_ns, now_ns)
+        self.last_pose = pose
         facts = self.facts(fresh=scan is not None and pose is not None)
         verdict = gate(facts)
         if verdict is Gate.SILENT:

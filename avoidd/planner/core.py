@@ -317,30 +317,39 @@ class Planner:
     ) -> Decision:
         """Stay here: no turning, and zero velocity (not a decision: planning is paused).
 
-        With the vehicle's ``pose``, "here" is where its positions are: a drift of those
-        toward a near remembered obstacle that its reported velocity does not show is asked
-        back (:meth:`drift_back_m_s`), as on the move. Told to hold zero, PX4 SITL under CPU
-        load let its positions close on a wall at 0.3-0.4 m/s for five seconds, reporting
-        about zero, and ran into it while avoidd held on stale frames.
+        With the vehicle's ``pose``, "here" is where its positions are and outside the
+        clearance of what it remembers: inside it, the hold backs away
+        (:meth:`back_away_m_s`), and a drift of the positions toward a near remembered
+        obstacle that the reported velocity does not show is asked back
+        (:meth:`drift_back_m_s`), as on the move. Told to hold zero, PX4 SITL under CPU load
+        let its positions close on a wall at 0.3-0.4 m/s for five seconds, reporting about
+        zero, and ran into it while avoidd held on stale frames; with the drift asked back but
+        no back-away, holds flickering with moves (frames just over ``max_age_ms`` old) halved
+        the back-away PX4 saw and it closed from 1.1 to 0.35 m of the wall's edge.
         """
-        north, east = (0.0, 0.0) if pose is None else self._held_drift_m_s(pose)
+        north, east = (0.0, 0.0) if pose is None else self._held_correction_m_s(pose)
         return Decision((north, east, 0.0), 0.0, state, goal_distance_m=goal_distance_m)
 
-    def _held_drift_m_s(self, pose: Pose) -> tuple[float, float]:
-        """The drift correction a hold sends: :meth:`drift_back_m_s`, within what is known.
+    def _held_correction_m_s(self, pose: Pose) -> tuple[float, float]:
+        """What a hold sends: the back-away plus the drift correction, within what is known.
 
-        A hold plans nothing, so the correction is checked here: none for a disagreement
-        beyond :data:`_DRIFT_JUMP_M_S` (a position reset), and no faster than the maximum
-        speed or than a stop within the free distance that way (the speed law's, with the
-        scan's age in its delay: stale frames slow it further).
+        A hold plans nothing, so the correction is checked here: no drift correction for a
+        disagreement beyond :data:`_DRIFT_JUMP_M_S` (a position reset) or without a track,
+        and no faster than the maximum speed or than a stop within the free distance that
+        way (the speed law's, with the scan's age in its delay: stale frames slow it further).
+        Both parts point away from what is near, so the hold never sends the vehicle toward
+        it.
         """
         self.memory.expire(pose.t_ns)
+        north, east = self.back_away_m_s(pose)
         track = pose.track_ne_m_s
-        if track is None:
-            return (0.0, 0.0)
-        if math.hypot(track[0] - pose.north_m_s, track[1] - pose.east_m_s) > _DRIFT_JUMP_M_S:
-            return (0.0, 0.0)
-        north, east = self.drift_back_m_s(pose)
+        jump = (
+            track is None
+            or math.hypot(track[0] - pose.north_m_s, track[1] - pose.east_m_s) > _DRIFT_JUMP_M_S
+        )
+        if not jump:
+            drift_n, drift_e = self.drift_back_m_s(pose)
+            north, east = north + drift_n, east + drift_e
         speed = math.hypot(north, east)
         if speed == 0.0:
             return (0.0, 0.0)
@@ -444,7 +453,7 @@ class Planner:
         the other way: the autopilot flies that much away in its own frame, which leaves the
         positions where the plan wants them. It is added to the back-away (the plan gives way
         to both within the maximum speed) and never points toward what is near. Holds with
-        a known pose (arrived, dead end, stale, no path) send this alone.
+        a known pose (arrived, dead end, stale, no path) send this with the back-away.
 
         Args:
             pose: The vehicle's state: its reported and track velocity.
@@ -518,7 +527,7 @@ class Planner:
             self._best_since_ns = None
             self._dead_end_since_ns = None
             state = "arrived" if abs(climb) <= _ARRIVED_ALTITUDE_M else "moving"
-            north, east = self._held_drift_m_s(pose)
+            north, east = self._held_correction_m_s(pose)
             return Decision((north, east, vertical), 0.0, state, goal_distance_m=goal_m)
         if self._no_progress(now_ns, goal_m):
             return self.hold("no path", goal_m, pose)
@@ -826,7 +835,7 @@ class Planner:
         target = math.pi * self._scan_side * (1.0 if first else -1.0)
         rate = math.radians(self.config.max_yaw_rate_deg_s)
         yaw_rate = max(-rate, min(rate, _YAW_GAIN * (target - self._turned_rad)))
-        north, east = self._held_drift_m_s(pose)
+        north, east = self._held_correction_m_s(pose)
         return Decision((north, east, 0.0), yaw_rate, "dead end", goal_distance_m=goal_m)
 
 

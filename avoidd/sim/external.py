@@ -117,6 +117,10 @@ class Sample:
         state: avoidd's planner state then (None without a planner decision).
         setpoint_ne_m_s: The planner's horizontal velocity setpoint then.
         free_m: The planner's free distance along its chosen direction then.
+        track_ne_m_s: The velocity the autopilot's positions showed then, as the planner saw
+            it (:mod:`avoidd.planner.track`; None: too few positions).
+        near_side_deg: The bearing of the side remembered obstacles near the vehicle were
+            on then (:meth:`avoidd.planner.core.Planner.near_side_rad`; None: none near).
     """
 
     t_s: float
@@ -129,6 +133,8 @@ class Sample:
     state: str | None = None
     setpoint_ne_m_s: tuple[float, float] | None = None
     free_m: float | None = None
+    track_ne_m_s: tuple[float, float] | None = None
+    near_side_deg: float | None = None
 
     def describe(self) -> str:
         """The sample in one line (for a failure's message)."""
@@ -140,7 +146,14 @@ class Sample:
             else " set {:+.2f} {:+.2f}".format(*self.setpoint_ne_m_s)
         )
         free = "" if self.free_m is None else f" free {self.free_m:.2f}"
-        return f"{where} edge {self.clearance_m:5.2f} {moving}{setpoint} {self.state}{free}"
+        track = (
+            "" if self.track_ne_m_s is None else " track {:+.2f} {:+.2f}".format(*self.track_ne_m_s)
+        )
+        side = "" if self.near_side_deg is None else f" near side {self.near_side_deg:.0f} deg"
+        return (
+            f"{where} edge {self.clearance_m:5.2f} {moving}{track}{setpoint} {self.state}{free}"
+            f"{side}"
+        )
 
 
 def window_around_minimum(samples: list[Sample], seconds: float) -> list[Sample]:
@@ -524,6 +537,9 @@ class ExternalRun:
         edge_m = self.world.clearance_m(north_m, east_m, altitude_m) - self.radius_m
         loop = self.daemon.avoidance if self.daemon is not None else None
         decision = loop.last_decision if loop is not None else None
+        pose = loop.last_pose if loop is not None else None
+        track = None if pose is None else pose.track_ne_m_s
+        side_rad = None if pose is None or loop is None else loop.planner.near_side_rad(pose)
         sample = Sample(
             (time.monotonic_ns() - self._t0_ns) / 1e9,
             north_m,
@@ -535,6 +551,8 @@ class ExternalRun:
             None if decision is None else decision.state,
             None if decision is None else decision.velocity_ned[:2],
             None if decision is None else decision.free_m,
+            None if track is None else (round(track[0], 3), round(track[1], 3)),
+            None if side_rad is None else round(math.degrees(side_rad), 1),
         )
         summary = self.summary
         summary.samples.append(sample)
