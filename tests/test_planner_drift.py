@@ -16,6 +16,7 @@ from avoidd.planner.core import (
     Goal,
     Planner,
     Pose,
+    away_m_s,
     brake_closing,
     drift_speed_limit_m_s,
     stopping_speed_m_s,
@@ -383,3 +384,57 @@ def test_holds_inside_the_clearance_back_away_and_add_the_drift_correction() -> 
     )
     # Outside the clearance (the wall 2 m away) and no drift: a plain zero, as before.
     assert _planner_by_a_wall(2.0).hold("stale", 30.0, _pose(None, reported=(0.0, 0.0))).holding
+
+
+def test_a_dead_end_backs_away_and_an_arrival_beside_a_wall_stays() -> None:
+    probe = _planner_by_a_wall(2.0)
+    wall_m = probe.clearance_m - 0.3  # 0.25 m inside
+    still = _pose(None, reported=(0.0, 0.0))
+    # Dead-ended inside the clearance: it turns to look and backs away meanwhile.
+    planner = _planner_by_a_wall(wall_m)
+    looking = planner._dead_end(S, still, 30.0, 0.0)
+    assert looking.state == "dead end"
+    assert looking.velocity_ned[:2] == pytest.approx((-0.5, 0.0), abs=1e-6)
+    # Arrived at a goal within the clearance of the wall: it stays (backing out of the
+    # acceptance radius would start the flight again), and only a drift is asked back.
+    goal = Goal(wall_m - 0.4, 0.0, 2.0)
+    arrived = _planner_by_a_wall(wall_m).decide(S, still, goal, fresh=True)
+    assert arrived.state == "arrived" and arrived.holding
+    drifting = _pose((0.5, 0.0), reported=(0.0, 0.0))
+    arrived = _planner_by_a_wall(wall_m).decide(S, drifting, goal, fresh=True)
+    assert arrived.state == "arrived"
+    assert arrived.velocity_ned[:2] == pytest.approx((-0.4, 0.0), abs=1e-6)
+
+
+def test_no_part_of_the_drift_correction_goes_against_the_back_away() -> None:
+    # Against it: dropped. Across it: kept. With it, or with no back-away: added whole.
+    assert away_m_s((-0.1, 0.0), (0.5, 0.0)) == pytest.approx((-0.1, 0.0))
+    assert away_m_s((-0.5, 0.0), (0.2, 0.3)) == pytest.approx((-0.5, 0.3))
+    assert away_m_s((-0.5, 0.0), (-0.2, 0.3)) == pytest.approx((-0.7, 0.3))
+    assert away_m_s((0.0, 0.0), (0.3, -0.1)) == pytest.approx((0.3, -0.1))
+    rng = np.random.default_rng(11)
+    for _ in range(300):
+        back = tuple(rng.uniform(-0.75, 0.75, 2))
+        drift = tuple(rng.uniform(-0.75, 0.75, 2))
+        north, east = away_m_s(back, drift)
+        # Never less away from what is too near than the back-away alone.
+        assert north * back[0] + east * back[1] >= back[0] ** 2 + back[1] ** 2 - 1e-9
+
+
+def test_a_hold_between_a_pole_inside_the_clearance_and_a_wall_it_drifts_toward() -> None:
+    # A pole just inside the clearance to the north, a long wall within the drift band to
+    # the south, the positions drifting south at 0.6 m/s: the drift correction points north,
+    # at the pole. The hold backs away from the pole and asks nothing toward it.
+    planner = _planner_by_a_wall(2.0)
+    clearance = planner.clearance_m
+    pole = np.array([[clearance - 0.1, 0.0]])  # a thin pole: one point
+    east = np.arange(-6.0, 6.01, 0.1)
+    wall = np.stack([np.full(east.size, -(clearance + 0.5)), east], axis=1)
+    planner.memory.north_east = np.concatenate([pole, wall])
+    planner.memory.t_ns = np.full(planner.memory.north_east.shape[0], S, dtype=np.int64)
+    pose = _pose((-0.6, 0.0), reported=(0.0, 0.0))
+    backing = planner.back_away_m_s(pose)
+    drifting = planner.drift_back_m_s(pose)
+    assert backing[0] < 0.0 < drifting[0]  # away from the pole; the drift's toward it
+    held = planner.hold("stale", 30.0, pose)
+    assert held.velocity_ned[:2] == pytest.approx(backing, abs=1e-6)

@@ -12,8 +12,10 @@ mode, autopilot) and whether perception is fresh, applies the gate
   pilot took over, or PX4's offboard-loss failsafe), or when avoidd starts while it is armed in
   another mode, nothing until a new goal or a new arming (PX4 goes back to OFFBOARD by itself
   when setpoints return after its offboard-loss failsafe);
-- perception stale, or no local position: an explicit zero-velocity hold (ArduPilot drops a
-  velocity command after 3 s, so silence is no hold);
+- perception stale, or no local position: an explicit hold (ArduPilot drops a velocity
+  command after 3 s, so silence is no hold): zero velocity, or with a known position the
+  back-away from what the vehicle is inside the clearance of and the drift correction
+  (:meth:`avoidd.planner.core.Planner.hold`);
 - otherwise the planner's decision.
 
 Each fresh merged scan goes into the planner's memory with the vehicle's position and the yaw

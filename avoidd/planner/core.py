@@ -179,7 +179,8 @@ class Decision:
     def holding(self) -> bool:
         """Whether the setpoint asks for no horizontal motion.
 
-        A hold that asks a drift back asks for some: its state says that it holds.
+        A hold that backs away or asks a drift back asks for some: its state says that it
+        holds.
         """
         return self.velocity_ned[0] == 0.0 and self.velocity_ned[1] == 0.0
 
@@ -315,7 +316,7 @@ class Planner:
     def hold(
         self, state: str, goal_distance_m: float | None = None, pose: Pose | None = None
     ) -> Decision:
-        """Stay here: no turning, and zero velocity (not a decision: planning is paused).
+        """Stay here: no turning, no planned motion (not a decision: planning is paused).
 
         With the vehicle's ``pose``, "here" is where its positions are and outside the
         clearance of what it remembers: inside it, the hold backs away
@@ -330,26 +331,39 @@ class Planner:
         north, east = (0.0, 0.0) if pose is None else self._held_correction_m_s(pose)
         return Decision((north, east, 0.0), 0.0, state, goal_distance_m=goal_distance_m)
 
-    def _held_correction_m_s(self, pose: Pose) -> tuple[float, float]:
+    def _held_correction_m_s(self, pose: Pose, back_away: bool = True) -> tuple[float, float]:
         """What a hold sends: the back-away plus the drift correction, within what is known.
 
-        A hold plans nothing, so the correction is checked here: no drift correction for a
-        disagreement beyond :data:`_DRIFT_JUMP_M_S` (a position reset) or without a track,
-        and no faster than the maximum speed or than a stop within the free distance that
-        way (the speed law's, with the scan's age in its delay: stale frames slow it further).
-        Both parts point away from what is near, so the hold never sends the vehicle toward
-        it.
+        A hold plans nothing, so the correction is checked here: no drift part for a
+        disagreement beyond :data:`_DRIFT_JUMP_M_S` (a position reset) or without a track, no
+        drift part against the back-away (:func:`away_m_s`), and no faster than the maximum
+        speed or than a stop within the free distance that way (the speed law's, with the
+        scan's age in its delay: stale frames slow it further). When that leaves nothing, the
+        back-away alone is checked so.
+
+        Args:
+            pose: The vehicle's state.
+            back_away: Back away from what the vehicle is inside the clearance of (an arrival
+                does not: its goal may lie within the clearance of a wall, and backing out of
+                the acceptance radius would start the flight again).
         """
         self.memory.expire(pose.t_ns)
-        north, east = self.back_away_m_s(pose)
+        backing = self.back_away_m_s(pose) if back_away else (0.0, 0.0)
+        drifting = (0.0, 0.0)
         track = pose.track_ne_m_s
-        jump = (
-            track is None
-            or math.hypot(track[0] - pose.north_m_s, track[1] - pose.east_m_s) > _DRIFT_JUMP_M_S
-        )
-        if not jump:
-            drift_n, drift_e = self.drift_back_m_s(pose)
-            north, east = north + drift_n, east + drift_e
+        if (
+            track is not None
+            and math.hypot(track[0] - pose.north_m_s, track[1] - pose.east_m_s) <= _DRIFT_JUMP_M_S
+        ):
+            drifting = self.drift_back_m_s(pose)
+        held = self._within_stop(pose, away_m_s(backing, drifting))
+        if held == (0.0, 0.0) and backing != (0.0, 0.0):
+            held = self._within_stop(pose, backing)
+        return held
+
+    def _within_stop(self, pose: Pose, velocity: tuple[float, float]) -> tuple[float, float]:
+        """``velocity`` no faster than the maximum speed or a stop within the free distance."""
+        north, east = velocity
         speed = math.hypot(north, east)
         if speed == 0.0:
             return (0.0, 0.0)
@@ -453,7 +467,8 @@ class Planner:
         the other way: the autopilot flies that much away in its own frame, which leaves the
         positions where the plan wants them. It is added to the back-away (the plan gives way
         to both within the maximum speed) and never points toward what is near. Holds with
-        a known pose (arrived, dead end, stale, no path) send this with the back-away.
+        a known pose (dead end, stale, no path) send this with the back-away, an arrival
+        this alone.
 
         Args:
             pose: The vehicle's state: its reported and track velocity.
@@ -527,7 +542,7 @@ class Planner:
             self._best_since_ns = None
             self._dead_end_since_ns = None
             state = "arrived" if abs(climb) <= _ARRIVED_ALTITUDE_M else "moving"
-            north, east = self._held_correction_m_s(pose)
+            north, east = self._held_correction_m_s(pose, back_away=False)
             return Decision((north, east, vertical), 0.0, state, goal_distance_m=goal_m)
         if self._no_progress(now_ns, goal_m):
             return self.hold("no path", goal_m, pose)
@@ -622,7 +637,7 @@ class Planner:
             self._side = side
         drifting = self.drift_back_m_s(pose)
         backing = self.back_away_m_s(pose)
-        away = (backing[0] + drifting[0], backing[1] + drifting[1])
+        away = away_m_s(backing, drifting)
         moving_m_s = math.hypot(pose.north_m_s, pose.east_m_s)
         if moving_m_s > _TURN_BACK_M_S and abs(float(wrap_rad(chosen - along))) > _TURN_BACK_RAD:
             # The way chosen turns the vehicle back on itself (every way on looks closed):
@@ -970,6 +985,33 @@ def brake_closing(
         return command_m_s
     back = -min(excess_m_s, _BACK_AWAY_MAX_M_S) * side
     return _with_back_away(command_m_s, (float(back[0]), float(back[1])), max_speed_m_s)
+
+
+def away_m_s(backing: tuple[float, float], drifting: tuple[float, float]) -> tuple[float, float]:
+    """The back-away plus the drift correction, no part of the drift against the back-away.
+
+    The back-away flees what the vehicle is inside the clearance of; the drift correction
+    flees the side of what is near within the clearance plus :data:`_DRIFT_BAND_M`, which can
+    be another obstacle on the other side (a pole inside the clearance to the north, a wall
+    beyond it to the south the positions drift toward). The drift's part against the
+    back-away would push the vehicle at what it is already too near, so it is dropped; its
+    part across the back-away stays.
+
+    Args:
+        backing: :meth:`Planner.back_away_m_s`.
+        drifting: :meth:`Planner.drift_back_m_s`.
+
+    Returns:
+        The velocity to add (north, east).
+    """
+    back_m_s = math.hypot(*backing)
+    drift_n, drift_e = drifting
+    if back_m_s > 0.0:
+        unit_n, unit_e = backing[0] / back_m_s, backing[1] / back_m_s
+        along = drift_n * unit_n + drift_e * unit_e
+        if along < 0.0:
+            drift_n, drift_e = drift_n - along * unit_n, drift_e - along * unit_e
+    return (backing[0] + drift_n, backing[1] + drift_e)
 
 
 def _unit(vector: tuple[float, float]) -> np.ndarray | None:

@@ -19,9 +19,9 @@ class Gate(Enum):
     """PX4 not yet in OFFBOARD: stream hold-here setpoints so that it can be switched (not
     after the pilot switched away from OFFBOARD: that is silent until a new goal)."""
     HOLD = "hold"
-    """In a setpoint mode but perception is stale: an explicit hold, zero velocity or only the
-    drift correction of :meth:`avoidd.planner.core.Planner.hold` (ArduPilot drops a velocity
-    command after 3 s, so silence is no hold)."""
+    """In a setpoint mode but perception is stale: an explicit hold, zero velocity or the
+    back-away and drift correction of :meth:`avoidd.planner.core.Planner.hold` (ArduPilot
+    drops a velocity command after 3 s, so silence is no hold)."""
     PLAN = "plan"
     """Fly the planner's decision."""
 
