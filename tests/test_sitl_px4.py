@@ -2,7 +2,8 @@
 avoidd's OBSTACLE_DISTANCE, and avoidd's planner flying OFFBOARD.
 
 PX4's ports are fixed (its GCS link sends to UDP 14550, its onboard link to 14540): these tests
-run one PX4 at a time, and each waits about 35 s for PX4's estimator to settle.
+run one PX4 at a time. Each waits for PX4's estimator (ready about 1.5 s after boot with
+avoidd.params' EKF2_ANGERR_INIT) and then lets it settle for 20 s before arming.
 """
 
 from __future__ import annotations

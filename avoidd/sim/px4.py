@@ -56,6 +56,11 @@ ESTIMATOR_READY = 0x01 | 0x02 | 0x04 | 0x08 | 0x10 | 0x20
 """ESTIMATOR_STATUS flags that must all be set: attitude, horizontal and vertical velocity,
 relative and absolute horizontal position, absolute vertical position."""
 ESTIMATOR_BAD = 0x0400 | 0x0800  # GPS glitch, accelerometer error
+SETTLE_S = 20.0
+"""Seconds to wait after the estimator first reports ready. With ``EKF2_ANGERR_INIT`` 0.02
+(avoidd.params) it reports ready about 1.5 s after boot, but a vehicle armed then drifted
+toward the wall against its own velocity report (planner flights 0.82 and 0.89 m from it,
+against 1.06-1.32 m armed about 35 s after boot); armed 20 s after ready, 1.06-1.31 m."""
 NAV_TAKEOFF = 22
 _LANDED = {0: "undefined", 1: "on ground", 2: "in air", 3: "taking off", 4: "landing"}
 """MAV_LANDED_STATE names."""
@@ -242,11 +247,15 @@ class Px4Sitl:
         assert self.gcs is not None
         await self.gcs.wait_heartbeat(timeout_s)
 
-    async def wait_estimator(self, timeout_s: float = 90.0) -> float:
-        """Wait until the estimator reports attitude, velocity and position valid.
+    async def wait_estimator(self, timeout_s: float = 90.0, settle_s: float = SETTLE_S) -> float:
+        """Wait until the estimator reports attitude, velocity and position valid, then settle.
+
+        Args:
+            timeout_s: Seconds the estimator has to report ready.
+            settle_s: Seconds to wait after that (see ``SETTLE_S``).
 
         Returns:
-            Seconds waited.
+            Seconds until the estimator reported ready (the settling not counted).
 
         Raises:
             LinkError: Not within the timeout.
@@ -266,7 +275,9 @@ class Px4Sitl:
         )
         if ok is None:
             raise LinkError(f"PX4 SITL: estimator not ready within {timeout_s:.0f} s")
-        return time.monotonic() - start
+        ready_s = time.monotonic() - start
+        await asyncio.sleep(settle_s)
+        return ready_s
 
     async def take_off(self, height_m: float, tries: int = 3, climb_s: float = 20.0) -> int:
         """Arm and take off (NAV_TAKEOFF, to ``MIS_TAKEOFF_ALT``) until ``height_m`` above home.
