@@ -438,3 +438,38 @@ def test_a_hold_between_a_pole_inside_the_clearance_and_a_wall_it_drifts_toward(
     assert backing[0] < 0.0 < drifting[0]  # away from the pole; the drift's toward it
     held = planner.hold("stale", 30.0, pose)
     assert held.velocity_ned[:2] == pytest.approx(backing, abs=1e-6)
+
+
+def test_a_hold_backs_away_into_ground_the_cameras_have_not_seen() -> None:
+    # `unknown: blocked` (the default) closes planned moves toward ground not looked at. The
+    # way out of a wall's clearance is behind the cameras, seldom seen: a hold that checked
+    # it against that sent zero (PX4 SITL under load: a dead-end hold for three seconds while
+    # the positions closed on the wall at 0.4-0.5 m/s, into it).
+    config = AvoidanceConfig.model_validate({"enabled": True, "max_speed_m_s": 2.0})
+    assert config.unknown == "blocked"
+    planner = Planner(config, 20.0)
+    wall_m = planner.clearance_m - 0.3  # 0.25 m inside
+    east = np.arange(-3.0, 3.01, 0.1)
+    planner.memory.north_east = np.stack([np.full(east.size, wall_m), east], axis=1)
+    planner.memory.t_ns = np.full(east.size, S, dtype=np.int64)
+    still = Pose(S, 0.0, 0.0, -2.0, 0.0, 0.0, 0.0, None)
+    # Nothing has been seen behind: a planned move that way would be blocked...
+    assert planner.free_m(still, np.array([math.pi]))[0] == 0.0
+    # ... but the holds back away (0.25 m inside: 0.5 m/s), and add a drift toward the wall.
+    for state in ("stale", "no path"):
+        assert planner.hold(state, 30.0, still).velocity_ned[:2] == pytest.approx(
+            (-0.5, 0.0), abs=1e-6
+        )
+    looking = planner._dead_end(S, still, 30.0, 0.0)
+    assert looking.velocity_ned[:2] == pytest.approx((-0.5, 0.0), abs=1e-6)
+    drifting = Pose(S, 0.0, 0.0, -2.0, 0.0, 0.0, 0.0, (0.5, 0.0))
+    assert planner.hold("stale", 30.0, drifting).velocity_ned[:2] == pytest.approx(
+        (-0.9, 0.0), abs=1e-6
+    )
+    # A remembered wall behind, 0.3 m beyond the clearance, still limits it: slower, so as to
+    # stop before that wall.
+    behind = np.stack([np.full(east.size, -(planner.clearance_m + 0.3)), east], axis=1)
+    planner.memory.north_east = np.concatenate([planner.memory.north_east, behind])
+    planner.memory.t_ns = np.full(planner.memory.north_east.shape[0], S, dtype=np.int64)
+    limited = planner.hold("stale", 30.0, drifting).velocity_ned[:2]
+    assert -0.9 < limited[0] < 0.0 and limited[1] == pytest.approx(0.0, abs=1e-6)
