@@ -455,21 +455,29 @@ def test_a_hold_backs_away_into_ground_the_cameras_have_not_seen() -> None:
     still = Pose(S, 0.0, 0.0, -2.0, 0.0, 0.0, 0.0, None)
     # Nothing has been seen behind: a planned move that way would be blocked...
     assert planner.free_m(still, np.array([math.pi]))[0] == 0.0
-    # ... but the holds back away (0.25 m inside: 0.5 m/s), and add a drift toward the wall.
+    # ... but the holds back away (0.25 m inside: 0.5 m/s).
     for state in ("stale", "no path"):
         assert planner.hold(state, 30.0, still).velocity_ned[:2] == pytest.approx(
             (-0.5, 0.0), abs=1e-6
         )
     looking = planner._dead_end(S, still, 30.0, 0.0)
     assert looking.velocity_ned[:2] == pytest.approx((-0.5, 0.0), abs=1e-6)
+    # With a drift toward the wall the 0.4 m/s asked back adds to it, but into unseen ground
+    # no faster than a back-away at most: 0.9 asked, 0.75 sent.
     drifting = Pose(S, 0.0, 0.0, -2.0, 0.0, 0.0, 0.0, (0.5, 0.0))
     assert planner.hold("stale", 30.0, drifting).velocity_ned[:2] == pytest.approx(
-        (-0.9, 0.0), abs=1e-6
+        (-0.75, 0.0), abs=1e-6
     )
-    # A remembered wall behind, 0.3 m beyond the clearance, still limits it: slower, so as to
-    # stop before that wall.
+    # A remembered wall behind, 0.3 m beyond the clearance (0.65 m of room), still limits it:
+    # with the newest scan 2 s old, no faster than a stop before that wall allows.
     behind = np.stack([np.full(east.size, -(planner.clearance_m + 0.3)), east], axis=1)
     planner.memory.north_east = np.concatenate([planner.memory.north_east, behind])
     planner.memory.t_ns = np.full(planner.memory.north_east.shape[0], S, dtype=np.int64)
-    limited = planner.hold("stale", 30.0, drifting).velocity_ned[:2]
-    assert -0.9 < limited[0] < 0.0 and limited[1] == pytest.approx(0.0, abs=1e-6)
+    planner._last_scan_ns = S
+    later = Pose(3 * S, 0.0, 0.0, -2.0, 0.0, 0.0, 0.0, None)
+    room_m = float(planner.obstacle_free_m(later, np.array([math.pi]))[0])
+    assert room_m == pytest.approx(0.65, abs=1e-6)
+    stop_m_s = stopping_speed_m_s(room_m, config.max_accel_m_s2, planner._latency_s(3 * S))
+    assert stop_m_s < 0.5
+    limited = planner.hold("stale", 30.0, later).velocity_ned[:2]
+    assert limited == pytest.approx((-stop_m_s, 0.0), abs=1e-6)

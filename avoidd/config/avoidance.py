@@ -42,8 +42,10 @@ class AvoidanceConfig(Strict):
             one setpoint period plus 0.2 s counts instead.
         setpoint_rate_hz: Setpoints per second (PX4 needs more than 2 Hz).
         memory_s: How long an obstacle that left the cameras' view is remembered.
-        unknown: ``blocked``: never move toward a direction nothing measured (as PX4's
-            ``CP_GO_NO_DATA 0``); ``free``: treat it as clear.
+        unknown: ``blocked``: never plan a move toward a direction nothing measured (as
+            PX4's ``CP_GO_NO_DATA 0``); the back-away from an obstacle the vehicle is inside
+            the clearance of and the correction of a drift toward one may still go there, at
+            most 0.75 m/s; ``free``: treat it as clear.
         climb_rate_m_s: Vertical speed toward the goal altitude.
         dead_end_scan_s: Time spent turning to look for a way before "no path to goal".
         no_progress_s: Also "no path to goal" when the vehicle has not come 0.5 m nearer to

@@ -340,11 +340,12 @@ class Planner:
         speed or than a stop before the remembered obstacles that way (the speed law's, with
         the scan's age in its delay: stale frames slow it further). When that leaves nothing,
         the back-away alone is checked so. Ground the cameras have not looked at does not
-        stop it (``unknown: blocked`` does for planned moves): the way out of a wall's
-        clearance is away from where the cameras look, so it is seldom seen, and blocking it
-        cancelled every hold's correction (PX4 SITL under load: a dead-end hold sent zero for
-        three seconds while its positions closed on the wall at 0.4-0.5 m/s, into it). A
-        move adds the back-away the same way, unchecked by what was seen.
+        stop it (``unknown: blocked`` does for planned moves), it only caps it at
+        :data:`_BACK_AWAY_MAX_M_S`: the way out of a wall's clearance is away from where the
+        cameras look, so it is seldom seen, and blocking it cancelled every hold's correction
+        (PX4 SITL under load: a dead-end hold sent zero for three seconds while its positions
+        closed on the wall at 0.4-0.5 m/s, into it). A move adds the back-away unchecked by
+        what was seen; an arrival's drift correction goes through here too.
 
         Args:
             pose: The vehicle's state.
@@ -367,16 +368,23 @@ class Planner:
         return held
 
     def _within_stop(self, pose: Pose, velocity: tuple[float, float]) -> tuple[float, float]:
-        """``velocity`` no faster than the maximum speed or a stop before remembered obstacles."""
+        """``velocity`` no faster than the maximum speed or a stop before remembered obstacles.
+
+        Toward ground the cameras have not looked at (with ``unknown: blocked``), no faster
+        than a back-away at most (:data:`_BACK_AWAY_MAX_M_S`).
+        """
         north, east = velocity
         speed = math.hypot(north, east)
         if speed == 0.0:
             return (0.0, 0.0)
-        free_m = float(self.obstacle_free_m(pose, np.array([math.atan2(east, north)]))[0])
+        heading = np.array([math.atan2(east, north)])
+        free_m = float(self.obstacle_free_m(pose, heading)[0])
         limit = min(
             self.config.max_speed_m_s,
             stopping_speed_m_s(free_m, self.config.max_accel_m_s2, self._latency_s(pose.t_ns)),
         )
+        if float(self.free_m(pose, heading)[0]) < free_m:
+            limit = min(limit, _BACK_AWAY_MAX_M_S)
         if speed <= limit:
             return (north, east)
         return (north * limit / speed, east * limit / speed)

@@ -60,7 +60,7 @@ SETTLE_S = 20.0
 """Seconds to wait after the estimator first reports ready. With ``EKF2_ANGERR_INIT`` 0.02
 (avoidd.params) it reports ready about 1.5 s after boot, but a vehicle armed then drifted
 toward the wall against its own velocity report (planner flights 0.82 and 0.89 m from it,
-against 1.06-1.32 m armed about 35 s after boot); armed 20 s after ready, 1.06-1.31 m."""
+against 1.06-1.32 m armed about 35 s after boot); armed 20 s after ready, 1.06-1.34 m."""
 NAV_TAKEOFF = 22
 _LANDED = {0: "undefined", 1: "on ground", 2: "in air", 3: "taking off", 4: "landing"}
 """MAV_LANDED_STATE names."""
