@@ -13,6 +13,7 @@ import pytest
 
 from avoidd.errors import LinkError
 from avoidd.sim import ardupilot, px4
+from avoidd.sim.process import end_process_group
 from tests.helpers import free_udp_port
 
 
@@ -75,3 +76,25 @@ async def test_an_ardupilot_that_never_answers_leaves_no_process_or_folder(
     assert len(ended) == 1 and _group_gone(ended[0])
     assert sitl.process is None and sitl.gcs is None
     assert not any((tmp_path / "tmp").iterdir())
+
+
+async def test_a_stop_cancelled_in_its_grace_time_still_ends_the_group() -> None:
+    """A process group that ignores SIGTERM, and a stop cancelled while it waits (a test torn
+    down): the forced signal goes out before the cancellation does."""
+    process = await asyncio.create_subprocess_exec(
+        "sh",
+        "-c",
+        'trap "" TERM; echo ready; exec sleep 300',  # an ignored signal stays so across exec
+        stdout=asyncio.subprocess.PIPE,
+        start_new_session=True,
+    )
+    assert process.stdout is not None
+    assert await asyncio.wait_for(process.stdout.readline(), 10.0) == b"ready\n"
+    stopping = asyncio.create_task(end_process_group(process, grace_s=30.0))
+    await asyncio.sleep(0.3)
+    assert not _group_gone(process.pid)  # SIGTERM ignored: still there
+    stopping.cancel()
+    with pytest.raises(asyncio.CancelledError):
+        await stopping
+    await asyncio.wait_for(process.wait(), 10.0)
+    assert _group_gone(process.pid)

@@ -143,10 +143,12 @@ class ArduPilotSitl:
             self.gcs = None
         process = self.process
         self.process = None
-        await end_process_group(process)
-        if self._workdir is not None:
-            shutil.rmtree(self._workdir, ignore_errors=True)
-            self._workdir = None
+        try:
+            await end_process_group(process)
+        finally:
+            if self._workdir is not None:
+                shutil.rmtree(self._workdir, ignore_errors=True)
+                self._workdir = None
 
     async def __aenter__(self) -> ArduPilotSitl:
         await self.start()

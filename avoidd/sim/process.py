@@ -16,6 +16,9 @@ async def end_process_group(
     The process must have been started with ``start_new_session=True`` (its pid is its
     group's id), so that helpers it started end with it.
 
+    A wait that is cancelled (a test torn down, Ctrl-C) still sends the forced signal before
+    the cancellation goes on: nothing is left running.
+
     Args:
         process: The process, or None (nothing to do).
         grace_s: Seconds between the polite and the forced signal.
@@ -24,9 +27,15 @@ async def end_process_group(
         return
     with contextlib.suppress(ProcessLookupError):
         os.killpg(process.pid, signal.SIGTERM)
+    ended = False
     try:
         await asyncio.wait_for(process.wait(), grace_s)
+        ended = True
     except TimeoutError:
-        with contextlib.suppress(ProcessLookupError):
-            os.killpg(process.pid, signal.SIGKILL)
+        pass
+    finally:
+        if not ended:
+            with contextlib.suppress(ProcessLookupError):
+                os.killpg(process.pid, signal.SIGKILL)
+    if not ended:
         await process.wait()

@@ -397,10 +397,12 @@ class Px4Sitl:
     async def _kill(self) -> None:
         process = self.process
         self.process = None
-        await end_process_group(process)
-        if self._root is not None:
-            shutil.rmtree(self._root, ignore_errors=True)
-            self._root = None
+        try:
+            await end_process_group(process)
+        finally:
+            if self._root is not None:
+                shutil.rmtree(self._root, ignore_errors=True)
+                self._root = None
 
     async def stop(self) -> None:
         """Close the ground station, end the process group and delete the work folder."""
