@@ -125,6 +125,33 @@ async def test_px4_prestreams_hold_setpoints_until_offboard(tmp_path: Path) -> N
         await autopilot.stop()
 
 
+async def test_no_prestream_while_px4_says_a_failsafe_is_in_effect(tmp_path: Path) -> None:
+    """After PX4's offboard-loss fallback its heartbeat says CRITICAL, and setpoints coming
+    back would end the failsafe and put it back in OFFBOARD by itself: a new goal then waits
+    for the pilot to pick a mode (which ends the failsafe) before avoidd prestreams."""
+    autopilot = MockAutopilot(flavour="px4", system_id=7, mode="POSCTL", armed=True, failsafe=True)
+    daemon, task = await _pair(tmp_path, autopilot)
+    try:
+        flies = "pilot flies; waiting for a new goal"
+        assert await wait_for(
+            lambda: daemon.avoidance is not None and daemon.avoidance.state == flies, 15.0
+        )
+        assert daemon.vehicle.mode is not None and daemon.vehicle.mode.failsafe
+        daemon.avoidance.set_goal(Goal(10.0, 5.0, 1.5, "GCS goal"))
+        waiting = "autopilot failsafe; waiting for the pilot to pick a mode"
+        assert await wait_for(lambda: daemon.avoidance.state == waiting, 5.0)
+        await asyncio.sleep(1.5)  # PX4 would be back in OFFBOARD after 1 s of setpoints
+        assert daemon.avoidance.state == waiting
+        assert not _setpoints(autopilot)
+        # The pilot picks Position mode: the failsafe is over, and avoidd offers OFFBOARD.
+        autopilot.failsafe = False
+        assert await wait_for(lambda: len(_setpoints(autopilot)) >= 10, 10.0)
+        assert daemon.avoidance.state == "prestream"
+    finally:
+        await stop(daemon, task)
+        await autopilot.stop()
+
+
 def test_a_goal_given_before_the_first_mode_is_heard_still_prestreams() -> None:
     """The start rule (armed in another mode when avoidd starts: someone else flies) is about
     the goal avoidd started with; a goal given afterwards is the ground station asking."""
@@ -132,7 +159,7 @@ def test_a_goal_given_before_the_first_mode_is_heard_still_prestreams() -> None:
     config = AvoidanceConfig(enabled=True, px4_prestream=True)
     loop = AvoidanceLoop(config, None, vehicle, None, lambda *a: None, 20.0)  # type: ignore[arg-type]
     loop.set_goal(Goal(10.0, 0.0, 2.0, "GCS goal"))
-    vehicle.mode = SimpleNamespace(armed=True, guided=False, autopilot="PX4")
+    vehicle.mode = SimpleNamespace(armed=True, guided=False, autopilot="PX4", failsafe=False)
     assert not loop.facts(fresh=True).taken_over
     # Without a goal given after the start, the rule holds.
     started_with_goal = AvoidanceLoop(

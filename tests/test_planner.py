@@ -238,6 +238,9 @@ def test_gate_never_fights_the_pilot_and_holds_on_stale_perception() -> None:
     assert gate(_facts(fresh=False)) is Gate.HOLD
     assert gate(_facts(setpoint_mode=False, px4=True)) is Gate.PRESTREAM
     assert gate(_facts(setpoint_mode=False, px4=True, prestream=False)) is Gate.SILENT
+    # PX4 in a failsafe: a prestream would end it and return PX4 to OFFBOARD by itself.
+    assert gate(_facts(setpoint_mode=False, px4=True, autopilot_failsafe=True)) is Gate.SILENT
+    assert gate(_facts(autopilot_failsafe=True)) is Gate.PLAN  # in OFFBOARD: flies as before
     assert gate(_facts(setpoint_mode=False, fresh=False)) is Gate.SILENT
 
 

@@ -13,6 +13,7 @@ import contextlib
 import itertools
 import math
 import time
+from collections.abc import AsyncIterator
 from pathlib import Path
 from typing import Any
 
@@ -48,15 +49,16 @@ async def test_px4_discovery_streams_arming_and_restart(px4_sitl_dir: Path, tmp_
     sitl = Px4Sitl(px4_sitl_dir)
     t0 = time.monotonic()
     gcs = await sitl.start()
-    config, calibrations = load_all(
-        synthetic_config(
-            tmp_path,
-            sitl.onboard_connection,
-            mavlink={"system_id": "auto"},
-            pipeline={"max_age_ms": 300, "log_interval_s": 5.0},
+    async with _stopped_on_error(sitl):
+        config, calibrations = load_all(
+            synthetic_config(
+                tmp_path,
+                sitl.onboard_connection,
+                mavlink={"system_id": "auto"},
+                pipeline={"max_age_ms": 300, "log_interval_s": 5.0},
+            )
         )
-    )
-    daemon = Daemon(config, calibrations)
+        daemon = Daemon(config, calibrations)
     task = asyncio.create_task(daemon.run())
     try:
         vehicle = daemon.vehicle
@@ -65,7 +67,10 @@ async def test_px4_discovery_streams_arming_and_restart(px4_sitl_dir: Path, tmp_
         assert beat.autopilot == MAV_AUTOPILOT_PX4
         assert vehicle.mode is not None and vehicle.mode.autopilot == "PX4"
         assert not vehicle.mode.armed
+        # avoidd's decoding of PX4's mode is the ground station's (pymavlink's own table).
+        assert await wait_for(lambda: _same_mode(daemon, gcs), 5.0), _px4_mode(gcs)
         first_mode = vehicle.mode.name
+        assert first_mode in {"POSCTL", "LOITER"}, first_mode
         # PX4 sends ATTITUDE only once its estimator has settled.
         ready_s = await sitl.wait_estimator(120.0)
         assert await wait_for(lambda: vehicle.streams_acknowledged, 10.0)
@@ -78,6 +83,9 @@ async def test_px4_discovery_streams_arming_and_restart(px4_sitl_dir: Path, tmp_
         with pytest.raises(LinkError) as failed:
             await sitl.take_off(10.0, tries=1, climb_s=8.0)
         assert await wait_for(lambda: vehicle.mode is not None and vehicle.mode.armed, 5.0)
+        assert await wait_for(lambda: _same_mode(daemon, gcs), 5.0), _px4_mode(gcs)
+        airborne_mode = vehicle.mode.name
+        assert airborne_mode in {"TAKEOFF", "LOITER"}, airborne_mode
         story = str(failed.value)
         # "taking off": PX4's take-off has begun (it ends "in air" unless the take-off stalls,
         # which a CI run saw here too).
@@ -253,9 +261,38 @@ async def test_px4_collision_prevention_stops_a_pushed_vehicle_on_avoidd_data(
             checked += 1
             if not any(abs(value - c) <= max(10, 0.05 * c) for c in candidates):
                 mismatched += 1
-    print(f"PX4 echoed {len(echoes)} maps; {checked} readings checked, {mismatched} mismatched")
+    # And the other way: a reading avoidd sent is in PX4's map (same or neighbouring bin) in
+    # the echoes that follow it by 0.2 to 1 s (PX4 keeps a reading for 0.5 s).
+    covered = dropped = 0
+    for heard in echoes:
+        echo = heard.message
+        before = [
+            m
+            for t, m in sent
+            if heard.received_ns - 1_000_000_000 <= t <= heard.received_ns - 200_000_000
+        ]
+        if not before:
+            continue
+        held = _folded(echo.distances)
+        for index, value in enumerate(_folded(before[-1].distances)):
+            if value >= UNKNOWN_CM or value > before[-1].max_distance:
+                continue
+            covered += 1
+            near = [held[(index + k) % 36] for k in (-1, 0, 1)]
+            if all(v >= UNKNOWN_CM or v > echo.max_distance for v in near):
+                dropped += 1
+    print(
+        f"PX4 echoed {len(echoes)} maps; {checked} readings checked, {mismatched} mismatched; "
+        f"{covered} of avoidd's readings looked for in them, {dropped} missing"
+    )
     assert checked >= 100
     assert mismatched <= 0.05 * checked
+    assert covered >= 100
+    assert dropped <= 0.05 * covered
+    # Stopped: full stick still held, the vehicle no longer flies at the wall in the last
+    # 3 s (unblocked it flies at over 3 m/s).
+    last = [x for x in summary.samples if x.t_s >= summary.flight_s - 3.0]
+    assert last and max(x.speed_m_s for x in last) < 1.0, [x.speed_m_s for x in last]
 
 
 async def test_px4_blocks_motion_into_bins_avoidd_reports_unknown_after_its_camera_is_lost(
@@ -296,13 +333,15 @@ async def test_px4_blocks_motion_into_bins_avoidd_reports_unknown_after_its_came
     held = [e for e in estimate if 3.0 <= e[0] <= replug_s]
     stop_travel = max(e[1] for e in stopping) - estimate[0][1]
     held_travel = max(e[1] for e in held) - min(e[1] for e in held)
+    into_unknown = max(e[1] for e in held) - held[0][1]
     total_travel = max(s.north_m for s in pushed) - start_north
     closest = min(pushed, key=lambda s: s.clearance_m)
     print(
         f"\nblind push: stopped after {stop_travel:.2f} m (top speed "
         f"{max(e[2] for e in stopping):.2f} m/s), then {held_travel:.2f} m of drift over "
-        f"{replug_s - 3:.0f} s at full stick (top speed {max(e[2] for e in held):.2f} "
-        f"m/s); with the camera back {total_travel:.2f} m in all, closest edge "
+        f"{replug_s - 3:.0f} s at full stick ({into_unknown:.2f} m of it on into the unknown; "
+        f"top speed {max(e[2] for e in held):.2f} m/s); with the camera back "
+        f"{total_travel:.2f} m in all, closest edge "
         f"{closest.clearance_m:.2f} m; heading before lining up "
         f"{run.heading_before_push_deg:.1f} deg; test {time.monotonic() - t0:.0f} s"
     )
@@ -320,10 +359,15 @@ async def test_px4_blocks_motion_into_bins_avoidd_reports_unknown_after_its_came
         and push_ns + 2_000_000_000 <= h.received_ns <= push_ns + replug_s * 1e9
     ]
     assert len(echoes) >= 10
-    assert all(min(_folded(e.distances)) > e.max_distance for e in echoes)
-    # Full stick, and the vehicle did not move into the unknown.
+    # No data (UINT16_MAX), not "clear" (max_distance + 1): PX4 knows it has no reading.
+    assert all(set(_folded(e.distances)) == {UNKNOWN_CM} for e in echoes), [
+        sorted(set(_folded(e.distances))) for e in echoes
+    ]
+    # Full stick, and the vehicle did not move into the unknown: from where it was at 3 s, it
+    # got no farther north (PX4 holding in Position mode drifts, mostly back: see
+    # ``held_travel``); and it never flew (full stick unblocked is over 3 m/s).
     assert stop_travel < 4.0
-    assert held_travel < 0.6 and max(e[2] for e in held) < 0.8
+    assert into_unknown < 0.5 and max(e[2] for e in held) < 0.8
     # With the camera back, it flew on, without a collision (how near collision prevention
     # lets it come is test_px4_collision_prevention_stops_a_pushed_vehicle_on_avoidd_data's).
     assert not summary.collided
@@ -375,12 +419,32 @@ def _px4_mode(gcs: GroundStation) -> str:
     return str(mavutil.interpret_px4_mode(beat.base_mode, beat.custom_mode))
 
 
+def _same_mode(daemon: Daemon, gcs: GroundStation) -> bool:
+    """avoidd's decoded mode and armed state are what the ground station's last HEARTBEAT says."""
+    mode = daemon.vehicle.mode
+    beat = gcs.of_type("HEARTBEAT")[-1]
+    armed = bool(beat.base_mode & mav.MAV_MODE_FLAG_SAFETY_ARMED)
+    return mode is not None and (mode.name, mode.armed) == (_px4_mode(gcs), armed)
+
+
+@contextlib.asynccontextmanager
+async def _stopped_on_error(sitl: Px4Sitl) -> AsyncIterator[None]:
+    """Stop a started PX4 when setting up the rest of a test fails (nothing left running)."""
+    try:
+        yield
+    except BaseException:
+        await sitl.stop()
+        raise
+
+
 async def test_px4_leaves_offboard_when_avoidd_stops_and_a_restarted_avoidd_waits(
     px4_sitl_dir: Path, tmp_path: Path
 ) -> None:
     """avoidd stopped in OFFBOARD: PX4 falls back to Position mode after COM_OF_LOSS_T (1 s).
-    avoidd started again stays silent (PX4 holds in Position mode) until it gets a new goal and
-    OFFBOARD is entered again; then it flies."""
+    avoidd started again stays silent (PX4 holds in Position mode); a new goal while PX4's
+    failsafe is in effect still sends nothing (setpoints would end the failsafe and put PX4
+    back in OFFBOARD by itself); once the pilot picks Position mode avoidd prestreams, and when
+    OFFBOARD is entered again it flies."""
     t0 = time.monotonic()
     sitl = Px4Sitl(px4_sitl_dir)
     gcs = await sitl.start()
@@ -392,17 +456,18 @@ async def test_px4_leaves_offboard_when_avoidd_stops_and_a_restarted_avoidd_wait
             "goal": {"north_m": 10.0, "east_m": 0.0, "altitude_m": 3.0},
         }
     }
-    config, calibrations = load_all(
-        synthetic_config(
-            tmp_path,
-            sitl.onboard_connection,
-            source={"kind": "synthetic", "fps": 10, "seed": 3, "obstacles": []},
-            mavlink={"system_id": "auto"},
-            pipeline={"max_age_ms": 300, "log_interval_s": 5.0},
-            sections=sections,
+    async with _stopped_on_error(sitl):
+        config, calibrations = load_all(
+            synthetic_config(
+                tmp_path,
+                sitl.onboard_connection,
+                source={"kind": "synthetic", "fps": 10, "seed": 3, "obstacles": []},
+                mavlink={"system_id": "auto"},
+                pipeline={"max_age_ms": 300, "log_interval_s": 5.0},
+                sections=sections,
+            )
         )
-    )
-    daemon = Daemon(config, calibrations)
+        daemon = Daemon(config, calibrations)
     task: asyncio.Task[int] | None = asyncio.create_task(daemon.run())
     try:
         await sitl.wait_estimator(120.0)
@@ -413,13 +478,23 @@ async def test_px4_leaves_offboard_when_avoidd_stops_and_a_restarted_avoidd_wait
         assert await wait_for(lambda: _px4_mode(gcs) == "OFFBOARD", 5.0)
         assert await wait_for(lambda: daemon.avoidance.state not in {"prestream", "stale"}, 5.0)
         await asyncio.sleep(3.0)  # avoidd flies
-        # avoidd stops: its setpoints end.
+        # avoidd stops: its setpoints end. When the last one went out is watched (10 ms).
+        last_sent_ns = [time.monotonic_ns(), daemon.avoidance.sent]
+
+        async def watch(loop: Any) -> None:
+            while True:
+                if loop.sent != last_sent_ns[1]:
+                    last_sent_ns[:] = [time.monotonic_ns(), loop.sent]
+                await asyncio.sleep(0.01)
+
+        watcher = asyncio.create_task(watch(daemon.avoidance))
         daemon.stop()
         assert await asyncio.wait_for(task, 30.0) == 0
         task = None
-        stopped_ns = time.monotonic_ns()
+        watcher.cancel()
         assert await wait_for(lambda: _px4_mode(gcs) != "OFFBOARD", 10.0)
-        fallback_s = (time.monotonic_ns() - stopped_ns) / 1e9
+        # Heard on PX4's next HEARTBEAT: never before the switch, up to a beat after it.
+        fallback_s = (time.monotonic_ns() - last_sent_ns[0]) / 1e9
         fallback_mode = _px4_mode(gcs)
         # avoidd again: PX4 flies armed in Position mode; avoidd stays silent. (PX4 would go
         # back to OFFBOARD by itself as soon as setpoints came back: its failsafe clears.)
@@ -445,11 +520,25 @@ async def test_px4_leaves_offboard_when_avoidd_stops_and_a_restarted_avoidd_wait
         ]
         assert _state(daemon) == flies
         assert daemon.avoidance is not None and daemon.avoidance.sent == 0
-        # The pilot hands over again: Position mode (ends PX4's pending return to OFFBOARD),
-        # a new goal (avoidd prestreams), OFFBOARD, and avoidd flies.
-        assert await gcs.set_mode("px4", "POSCTL") == mav.MAV_RESULT_ACCEPTED
+        statuses = {m.system_status for m in gcs.of_type("HEARTBEAT", since)}
+        # A new goal while PX4's failsafe is in effect (its HEARTBEAT says CRITICAL): a
+        # prestream now would end the failsafe and PX4 would return to OFFBOARD by itself, so
+        # avoidd waits for the pilot.
+        assert daemon.vehicle.mode is not None and daemon.vehicle.mode.failsafe, statuses
         daemon.avoidance.set_goal(Goal(12.0, 0.0, 3.0, "GCS goal"))
-        assert await wait_for(lambda: _state(daemon) == "prestream", 5.0)
+        waiting = "autopilot failsafe; waiting for the pilot to pick a mode"
+        assert await wait_for(lambda: _state(daemon) == waiting, 5.0), _state(daemon)
+        goal_ns = time.monotonic_ns()
+        await asyncio.sleep(2.5)  # PX4 needs a second of setpoints for OFFBOARD
+        failsafe_modes = {
+            str(mavutil.interpret_px4_mode(m.base_mode, m.custom_mode))
+            for m in gcs.of_type("HEARTBEAT", goal_ns)
+        }
+        sent_in_failsafe = daemon.avoidance.sent
+        # The pilot picks Position mode: the failsafe is over, avoidd prestreams, OFFBOARD is
+        # entered, and avoidd flies.
+        assert await gcs.set_mode("px4", "POSCTL") == mav.MAV_RESULT_ACCEPTED
+        assert await wait_for(lambda: _state(daemon) == "prestream", 5.0), _state(daemon)
         await asyncio.sleep(1.5)
         prestream_modes = {_px4_mode(gcs)}
         prestreamed = daemon.avoidance.sent
@@ -466,17 +555,22 @@ async def test_px4_leaves_offboard_when_avoidd_stops_and_a_restarted_avoidd_wait
                 await asyncio.wait_for(task, 30.0)
         await sitl.stop()
     print(
-        f"\nloss: PX4 left OFFBOARD {fallback_s:.2f} s after avoidd stopped, into "
+        f"\nloss: PX4 left OFFBOARD {fallback_s:.2f} s after avoidd's last setpoint, into "
         f"{fallback_mode}; restarted avoidd silent 4 s, PX4 in {sorted(modes)}, speed "
         f"{speeds[0]:.2f} m/s at first, at most {max(speeds):.2f}, in the last second at most "
-        f"{max(last_s):.2f} m/s, from 2 s on at most {max(after_2s):.2f} m/s; new goal: "
+        f"{max(last_s):.2f} m/s, from 2 s on at most {max(after_2s):.2f} m/s; its HEARTBEAT "
+        f"system_status {sorted(statuses)}; a goal in the failsafe: {sent_in_failsafe} "
+        f"setpoints, PX4 in {sorted(failsafe_modes)}; in Position mode: "
         f"{prestreamed} prestream setpoints, PX4 in "
         f"{sorted(prestream_modes)}; after OFFBOARD: {flying_state}; sticks' longest gap "
         f"{sticks.longest_gap_s:.2f} s; test {time.monotonic() - t0:.0f} s"
     )
     assert fallback_mode == "POSCTL"
-    assert fallback_s <= 3.0
+    # COM_OF_LOSS_T 1 s after the last setpoint, heard up to a heartbeat (1 s) later.
+    assert 0.95 <= fallback_s <= 3.0
     assert modes == {"POSCTL"} and prestream_modes == {"POSCTL"}
+    assert statuses == {mav.MAV_STATE_CRITICAL}
+    assert sent_in_failsafe == 0 and failsafe_modes == {"POSCTL"}
     # PX4 brakes from avoidd's last speed (how far it got depends on when the window starts:
     # a quick restart catches it at 2.4 m/s) and holds: nothing pushes the vehicle while avoidd
     # is silent. Holding in Position mode, PX4 itself drifts: up to 0.27 m/s idle, 0.48 m/s

@@ -104,6 +104,23 @@ def test_px4_modes_without_a_name_are_no_other_mode(custom_mode: int) -> None:
     )
 
 
+@pytest.mark.parametrize(
+    ("system_status", "failsafe"),
+    [
+        (mav.MAV_STATE_STANDBY, False),
+        (mav.MAV_STATE_ACTIVE, False),
+        (mav.MAV_STATE_CRITICAL, True),
+        (mav.MAV_STATE_EMERGENCY, True),
+        (mav.MAV_STATE_FLIGHT_TERMINATION, True),
+    ],
+)
+def test_a_failsafe_is_read_from_the_heartbeat_system_status(
+    system_status: int, failsafe: bool
+) -> None:
+    mode = decode_mode(PX4_ID, 2, CUSTOM | ARMED, 0x0003_0000, system_status)
+    assert (mode.name, mode.failsafe) == ("POSCTL", failsafe)
+
+
 def test_without_the_custom_mode_flag_no_mode_is_read() -> None:
     mode = decode_mode(ARDUPILOT_ID, 2, ARMED, 4)  # custom_mode 4 would be GUIDED
     assert (mode.name, mode.guided, mode.armed) == ("NO CUSTOM MODE", False, True)

@@ -54,7 +54,9 @@ class AvoidanceConfig(Strict):
             so that PX4 can be switched to OFFBOARD (it needs a stream above 2 Hz first); not
             after the vehicle left OFFBOARD while armed, nor when avoidd starts while it is
             armed in another mode (PX4 would take the stream back into OFFBOARD by itself),
-            until a new goal or a new arming.
+            until a new goal or a new arming; and never while the autopilot's heartbeat says
+            a failsafe is in effect (MAV_STATE_CRITICAL: setpoints would end PX4's
+            offboard-loss failsafe and put it back in OFFBOARD), until the pilot picks a mode.
         follow_mission: Fly the autopilot's mission (NAV_WAYPOINT items) as goals.
         goal: A goal to fly to from start (tests, bench work); goals from MAVLink replace it.
         params_file: Where the AVD_* parameters set in flight are kept (JSON, read back at

@@ -64,6 +64,7 @@ _REASONS = {
     "mode": "mode does not take setpoints",
     "enabled": "avoidance off",
     "taken_over": "pilot flies; waiting for a new goal",
+    "failsafe": "autopilot failsafe; waiting for the pilot to pick a mode",
 }
 
 
@@ -147,6 +148,7 @@ class AvoidanceLoop:
             fresh=fresh,
             prestream=self.config.px4_prestream,
             taken_over=self.taken_over,
+            autopilot_failsafe=mode is not None and mode.failsafe,
         )
 
     def _pose(self, t_ns: int, now_ns: int) -> Pose | None:
@@ -295,6 +297,8 @@ class AvoidanceLoop:
                 return _REASONS[name]
         if facts.taken_over and facts.px4:
             return _REASONS["taken_over"]
+        if facts.autopilot_failsafe and facts.px4 and facts.prestream:
+            return _REASONS["failsafe"]
         return _REASONS["mode"]
 
     def _setpoint(self, now_ns: int, decision: Decision) -> Message:

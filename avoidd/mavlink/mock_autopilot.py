@@ -140,6 +140,8 @@ class MockAutopilot:
         vehicle_type: MAV_TYPE it reports.
         mode: Flight mode name (ArduPilot's or PX4's spelling).
         armed: Armed state.
+        failsafe: A failsafe is in effect: armed, its HEARTBEAT says MAV_STATE_CRITICAL (as
+            PX4 and ArduPilot do).
         key: Signing key; when set it signs everything and ignores unsigned messages.
         attitude: The attitude it reports over time.
         utc: Whether SYSTEM_TIME carries a UTC time (as with a GPS fix).
@@ -164,6 +166,7 @@ class MockAutopilot:
     vehicle_type: int = mav.MAV_TYPE_QUADROTOR
     mode: str = ""
     armed: bool = False
+    failsafe: bool = False
     key: bytes | None = None
     attitude: AttitudeFn = default_attitude
     utc: bool = True
@@ -214,6 +217,8 @@ class MockAutopilot:
             mav.MAV_AUTOPILOT_PX4 if self.flavour == "px4" else mav.MAV_AUTOPILOT_ARDUPILOTMEGA
         )
         status = mav.MAV_STATE_ACTIVE if self.armed else mav.MAV_STATE_STANDBY
+        if self.armed and self.failsafe:
+            status = mav.MAV_STATE_CRITICAL
         return self.codec.build(
             "HEARTBEAT", self.vehicle_type, autopilot, base_mode, custom_mode, status
         )

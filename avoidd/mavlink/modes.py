@@ -16,6 +16,12 @@ PX4 = "PX4"
 
 _GUIDED_MODES = {ARDUPILOT: {"GUIDED"}, PX4: {"OFFBOARD"}}
 """Modes that fly velocity setpoints (ArduPilot's GUIDED_NOGPS takes attitude targets only)."""
+_FAILSAFE_STATES = {
+    mav.MAV_STATE_CRITICAL,
+    mav.MAV_STATE_EMERGENCY,
+    mav.MAV_STATE_FLIGHT_TERMINATION,
+}
+"""MAV_STATE values that say a failsafe is in effect."""
 
 
 @dataclass(frozen=True)
@@ -28,6 +34,9 @@ class FlightMode:
         name: Flight mode name as the autopilot's own ground stations show it.
         armed: Whether the motors are armed.
         guided: Whether external setpoints are obeyed in this mode (GUIDED, OFFBOARD).
+        failsafe: The heartbeat's ``system_status`` says a failsafe is in effect (CRITICAL or
+            worse). PX4 sends CRITICAL while armed with a failsafe action running (its
+            offboard-loss fallback among them); ArduPilot while any of its failsafes is set.
     """
 
     autopilot: str
@@ -35,6 +44,7 @@ class FlightMode:
     name: str
     armed: bool
     guided: bool
+    failsafe: bool = False
 
 
 def autopilot_name(autopilot: int) -> str:
@@ -46,14 +56,21 @@ def autopilot_name(autopilot: int) -> str:
     return f"other (MAV_AUTOPILOT {autopilot})"
 
 
-def decode_mode(autopilot: int, vehicle_type: int, base_mode: int, custom_mode: int) -> FlightMode:
-    """Decode the flight mode and armed state of an autopilot HEARTBEAT.
+def decode_mode(
+    autopilot: int,
+    vehicle_type: int,
+    base_mode: int,
+    custom_mode: int,
+    system_status: int = mav.MAV_STATE_ACTIVE,
+) -> FlightMode:
+    """Decode the flight mode, armed and failsafe state of an autopilot HEARTBEAT.
 
     Args:
         autopilot: HEARTBEAT.autopilot.
         vehicle_type: HEARTBEAT.type.
         base_mode: HEARTBEAT.base_mode.
         custom_mode: HEARTBEAT.custom_mode.
+        system_status: HEARTBEAT.system_status (MAV_STATE).
 
     Returns:
         The decoded mode; unknown numbers come out as ``"MODE n"`` rather than failing.
@@ -76,4 +93,5 @@ def decode_mode(autopilot: int, vehicle_type: int, base_mode: int, custom_mode: 
         name=name,
         armed=armed,
         guided=name in _GUIDED_MODES.get(who, set()),
+        failsafe=system_status in _FAILSAFE_STATES,
     )

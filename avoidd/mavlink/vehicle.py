@@ -305,7 +305,22 @@ class Vehicle:
         if not self._is_autopilot_heartbeat(message):
             return
         self._link.autopilot_spoke()  # the link is the autopilot's: replies go where it speaks
-        mode = decode_mode(message.autopilot, message.type, message.base_mode, message.custom_mode)
+        mode = decode_mode(
+            message.autopilot,
+            message.type,
+            message.base_mode,
+            message.custom_mode,
+            message.system_status,
+        )
+        was_failsafe = self.mode is not None and self.mode.failsafe
+        if mode.failsafe != was_failsafe:
+            logger.warning(
+                "vehicle %d: %s",
+                self.system_id,
+                "failsafe in effect (HEARTBEAT system_status CRITICAL or worse)"
+                if mode.failsafe
+                else "failsafe over",
+            )
         if mode != self.mode:
             previous = self.mode
             if previous is None or previous.name != mode.name:

@@ -17,7 +17,9 @@ class Gate(Enum):
     take setpoints (the pilot or the autopilot flies)."""
     PRESTREAM = "prestream"
     """PX4 not yet in OFFBOARD: stream hold-here setpoints so that it can be switched (not
-    after the pilot switched away from OFFBOARD: that is silent until a new goal)."""
+    after the pilot switched away from OFFBOARD: that is silent until a new goal; and not
+    while PX4 says a failsafe is in effect: after its offboard-loss fallback, setpoints
+    coming back end the failsafe and PX4 returns to OFFBOARD by itself)."""
     HOLD = "hold"
     """In a setpoint mode but perception is stale: an explicit hold, zero velocity or the
     back-away and drift correction of :meth:`avoidd.planner.core.Planner.hold` (ArduPilot
@@ -41,6 +43,9 @@ class Facts:
         prestream: ``avoidance.px4_prestream``.
         taken_over: The vehicle left the setpoint mode while armed since the goal was set (the
             pilot took over): no prestream until a new goal or a new arming.
+        autopilot_failsafe: The autopilot's heartbeat says a failsafe is in effect: no
+            prestream (PX4 would take setpoints coming back as the end of an offboard-loss
+            failsafe and return to OFFBOARD without anyone asking for it).
     """
 
     enabled: bool
@@ -52,6 +57,7 @@ class Facts:
     fresh: bool
     prestream: bool = True
     taken_over: bool = False
+    autopilot_failsafe: bool = False
 
 
 def gate(facts: Facts) -> Gate:
@@ -59,6 +65,8 @@ def gate(facts: Facts) -> Gate:
     if not (facts.enabled and facts.link_up and facts.armed and facts.goal):
         return Gate.SILENT
     if not facts.setpoint_mode:
-        prestream = facts.px4 and facts.prestream and not facts.taken_over
+        prestream = (
+            facts.px4 and facts.prestream and not facts.taken_over and not facts.autopilot_failsafe
+        )
         return Gate.PRESTREAM if prestream else Gate.SILENT
     return Gate.PLAN if facts.fresh else Gate.HOLD
