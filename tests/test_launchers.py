@@ -4,7 +4,9 @@ a stand-in binary that starts and stays silent)."""
 from __future__ import annotations
 
 import asyncio
+import contextlib
 import os
+import signal
 import stat
 import tempfile
 from pathlib import Path
@@ -88,13 +90,17 @@ async def test_a_stop_cancelled_in_its_grace_time_still_ends_the_group() -> None
         stdout=asyncio.subprocess.PIPE,
         start_new_session=True,
     )
-    assert process.stdout is not None
-    assert await asyncio.wait_for(process.stdout.readline(), 10.0) == b"ready\n"
-    stopping = asyncio.create_task(end_process_group(process, grace_s=30.0))
-    await asyncio.sleep(0.3)
-    assert not _group_gone(process.pid)  # SIGTERM ignored: still there
-    stopping.cancel()
-    with pytest.raises(asyncio.CancelledError):
-        await stopping
-    await asyncio.wait_for(process.wait(), 10.0)
-    assert _group_gone(process.pid)
+    try:
+        assert process.stdout is not None
+        assert await asyncio.wait_for(process.stdout.readline(), 10.0) == b"ready\n"
+        stopping = asyncio.create_task(end_process_group(process, grace_s=30.0))
+        await asyncio.sleep(0.3)
+        assert not _group_gone(process.pid)  # SIGTERM ignored: still there
+        stopping.cancel()
+        with pytest.raises(asyncio.CancelledError):
+            await stopping
+        await asyncio.wait_for(process.wait(), 10.0)
+        assert _group_gone(process.pid)
+    finally:  # a failure above leaves nothing running either
+        with contextlib.suppress(ProcessLookupError):
+            os.killpg(process.pid, signal.SIGKILL)

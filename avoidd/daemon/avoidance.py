@@ -11,7 +11,9 @@ mode, autopilot) and whether perception is fresh, applies the gate
   OFFBOARD (it needs a stream above 2 Hz first); but once it leaves OFFBOARD while armed (the
   pilot took over, or PX4's offboard-loss failsafe), or when avoidd starts while it is armed in
   another mode, nothing until a new goal or a new arming (PX4 goes back to OFFBOARD by itself
-  when setpoints return after its offboard-loss failsafe);
+  when setpoints return after its offboard-loss failsafe); and nothing while its heartbeat
+  says a failsafe is in effect (``system_status`` CRITICAL or worse, as throughout that
+  fallback in PX4 1.15), new goal or not, until the pilot picks a mode;
 - perception stale, or no local position: an explicit hold (ArduPilot drops a velocity
   command after 3 s, so silence is no hold): zero velocity, or with a known position the
   back-away from what the vehicle is inside the clearance of and the drift correction
@@ -121,6 +123,8 @@ class AvoidanceLoop:
         self.taken_over = False
         """Armed, the vehicle left the setpoint mode since the goal was set (no prestream)."""
         self.sent = 0
+        self.last_sent_ns = 0
+        """``time.monotonic_ns()`` when the last setpoint was sent (0: none yet)."""
 
     def facts(self, fresh: bool) -> Facts:
         """What the link and perception say this cycle."""
@@ -480,6 +484,7 @@ class AvoidanceLoop:
             if message is not None:
                 self.link.send(message)
                 self.sent += 1
+                self.last_sent_ns = time.monotonic_ns()
 
         await every(self.config.setpoint_rate_hz, send)
 
