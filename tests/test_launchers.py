@@ -15,6 +15,7 @@ import pytest
 
 from avoidd.errors import LinkError
 from avoidd.sim import ardupilot, px4
+from avoidd.sim import process as process_module
 from avoidd.sim.process import end_process_group
 from tests.helpers import free_udp_port
 
@@ -37,15 +38,14 @@ def _group_gone(pid: int) -> bool:
 def ended(monkeypatch: pytest.MonkeyPatch, tmp_path: Path) -> list[int]:
     """Pids of the processes the launchers ended; their work folders go under tmp_path/tmp."""
     pids: list[int] = []
-    real = px4.end_process_group
+    real = process_module.end_process_group
 
     async def end(process: asyncio.subprocess.Process | None, grace_s: float = 3.0) -> None:
         if process is not None:
             pids.append(process.pid)
         await real(process, grace_s)
 
-    monkeypatch.setattr(px4, "end_process_group", end)
-    monkeypatch.setattr(ardupilot, "end_process_group", end)
+    monkeypatch.setattr(process_module, "end_process_group", end)
     (tmp_path / "tmp").mkdir()
     monkeypatch.setattr(tempfile, "tempdir", str(tmp_path / "tmp"))
     return pids

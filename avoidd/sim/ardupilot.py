@@ -13,7 +13,6 @@ from __future__ import annotations
 import asyncio
 import logging
 import os
-import shutil
 import socket
 import tempfile
 from pathlib import Path
@@ -21,7 +20,7 @@ from types import TracebackType
 
 from avoidd.errors import LinkError
 from avoidd.sim.gcs import GroundStation
-from avoidd.sim.process import end_process_group
+from avoidd.sim.process import end_and_remove
 
 logger = logging.getLogger(__name__)
 
@@ -141,14 +140,9 @@ class ArduPilotSitl:
         if self.gcs is not None:
             await self.gcs.close()
             self.gcs = None
-        process = self.process
-        self.process = None
-        try:
-            await end_process_group(process)
-        finally:
-            if self._workdir is not None:
-                shutil.rmtree(self._workdir, ignore_errors=True)
-                self._workdir = None
+        process, folder = self.process, self._workdir
+        self.process = self._workdir = None
+        await end_and_remove(process, folder)
 
     async def __aenter__(self) -> ArduPilotSitl:
         await self.start()

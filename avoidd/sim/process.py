@@ -5,7 +5,9 @@ from __future__ import annotations
 import asyncio
 import contextlib
 import os
+import shutil
 import signal
+from pathlib import Path
 
 
 async def end_process_group(
@@ -39,3 +41,17 @@ async def end_process_group(
                 os.killpg(process.pid, signal.SIGKILL)
     if not ended:
         await process.wait()
+
+
+async def end_and_remove(process: asyncio.subprocess.Process | None, folder: Path | None) -> None:
+    """:func:`end_process_group`, then delete the run's work folder (also when cancelled).
+
+    Args:
+        process: The process, or None.
+        folder: Its work folder, or None.
+    """
+    try:
+        await end_process_group(process)
+    finally:
+        if folder is not None:
+            shutil.rmtree(folder, ignore_errors=True)

@@ -36,7 +36,7 @@ from pymavlink import mavutil
 from avoidd.errors import LinkError
 from avoidd.mavlink import codec as mav
 from avoidd.sim.gcs import GroundStation
-from avoidd.sim.process import end_process_group
+from avoidd.sim.process import end_and_remove
 
 logger = logging.getLogger(__name__)
 
@@ -395,14 +395,9 @@ class Px4Sitl:
         )
 
     async def _kill(self) -> None:
-        process = self.process
-        self.process = None
-        try:
-            await end_process_group(process)
-        finally:
-            if self._root is not None:
-                shutil.rmtree(self._root, ignore_errors=True)
-                self._root = None
+        process, folder = self.process, self._root
+        self.process = self._root = None
+        await end_and_remove(process, folder)
 
     async def stop(self) -> None:
         """Close the ground station, end the process group and delete the work folder."""
