@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import asyncio
+import os
 import threading
 import time
 from concurrent.futures import ThreadPoolExecutor
@@ -51,6 +52,7 @@ class _SlowPipeline:
         self.busy = 0
         self.most_busy = 0
         self.threads: set[tuple[str, str]] = set()
+        self.nice: set[tuple[str, int]] = set()  # stage, the nice of the thread it ran on
         self._lock = threading.Lock()
 
     def _enter(self) -> float:
@@ -63,6 +65,7 @@ class _SlowPipeline:
         with self._lock:
             self.busy -= 1
             self.threads.add((stage, threading.current_thread().name))
+            self.nice.add((stage, os.getpriority(os.PRIO_PROCESS, threading.get_native_id())))
             self.log.append((stage, seq, started, time.monotonic()))
 
     def match(self, frame: StereoFrame) -> Matched:
@@ -81,7 +84,9 @@ class _SlowPipeline:
         return HeadResult("front", frame.seq, frame.t_capture_ns, scan, matched.disparity, 1.0, {})
 
 
-def _run_head(overlap: bool, seconds: float) -> tuple[Head, _SlowPipeline, list[int], int]:
+def _run_head(
+    overlap: bool, seconds: float, matcher_nice: int = 0
+) -> tuple[Head, _SlowPipeline, list[int], int]:
     """A head fed a frame every 5 ms for ``seconds``; its published seqs and frames offered."""
     config, calibrations = load_all(ROOT / "config" / "demo.yaml")
     published: list[int] = []
@@ -105,6 +110,7 @@ def _run_head(overlap: bool, seconds: float) -> tuple[Head, _SlowPipeline, list[
             lambda frame: FramePose(0.0, 0.0, 1.5, "test", "test"),
             lambda *args, **kwargs: None,  # type: ignore[arg-type,return-value]
             overlap=overlap,
+            matcher_nice=matcher_nice,
         )
         slow = _SlowPipeline(head.pipeline, 0.04)
         head.pipeline = slow  # type: ignore[assignment]
@@ -143,7 +149,8 @@ def _run_head(overlap: bool, seconds: float) -> tuple[Head, _SlowPipeline, list[
 
 
 def test_overlapped_head_matches_the_next_frame_while_finishing_and_keeps_order() -> None:
-    head, slow, published, offered = _run_head(overlap=True, seconds=1.5)
+    own_nice = os.getpriority(os.PRIO_PROCESS, threading.get_native_id())
+    head, slow, published, offered = _run_head(overlap=True, seconds=1.5, matcher_nice=4)
     matches = [(seq, s, e) for stage, seq, s, e in slow.log if stage == "match"]
     finishes = [(seq, s, e) for stage, seq, s, e in slow.log if stage == "finish"]
     # The two halves ran side by side.
@@ -163,10 +170,14 @@ def test_overlapped_head_matches_the_next_frame_while_finishing_and_keeps_order(
     # Each stage always on its own thread (their scratch arrays are per thread).
     names = dict(slow.threads)
     assert len(slow.threads) == 2 and names["match"] != names["finish"]
+    # The matcher is nicer (pipeline.matcher_nice), so the finisher gets a core first.
+    assert slow.nice == {("match", min(19, own_nice + 4)), ("finish", own_nice)}
 
 
 def test_head_without_overlap_runs_one_stage_at_a_time() -> None:
-    head, slow, published, _ = _run_head(overlap=False, seconds=0.8)
+    own_nice = os.getpriority(os.PRIO_PROCESS, threading.get_native_id())
+    head, slow, published, _ = _run_head(overlap=False, seconds=0.8, matcher_nice=4)
+    assert {nice for _, nice in slow.nice} == {own_nice}  # one thread: nothing to favour
     assert slow.most_busy == 1
     assert len({name for _, name in slow.threads}) == 1  # one thread for both
     assert published == sorted(published) and len(published) >= 3

@@ -28,11 +28,18 @@ class PipelineConfig(Strict):
             next frame while the previous one is post-processed (the stages overlap, the
             newest frame still wins and results keep their order), and OpenCV's matcher uses
             that many threads. 1 = one frame at a time on one thread (the least CPU).
+        matcher_nice: With the stages overlapped: how much nicer (lower CPU priority) the
+            matching thread runs than the rest of the daemon, so that the finishing thread,
+            which holds the older frame, gets a core whenever it is ready and the matcher uses
+            what is left (three busy threads on two cores otherwise share them evenly, and the
+            older frame waits). 0: the same priority. Also lowers it against other programs on
+            the computer; raising nice needs no privileges. See docs/stereo.md for figures.
     """
 
     max_age_ms: int = Field(300, ge=20, le=5000)
     log_interval_s: float = Field(5.0, ge=0.5, le=3600.0)
     threads: int = Field(0, ge=0, le=64)
+    matcher_nice: int = Field(4, ge=0, le=19)
 
 
 class AppConfig(Strict):

@@ -231,6 +231,7 @@ class Daemon:
                 self._open_source,
                 on_frame=self._on_frame,
                 overlap=self.threads >= 2,
+                matcher_nice=self.config.pipeline.matcher_nice,
             )
             for h in self.config.heads
         ]

@@ -6,6 +6,7 @@ import asyncio
 import contextlib
 import functools
 import logging
+import os
 import threading
 import time
 from collections import deque
@@ -79,6 +80,8 @@ class Head:
         on_frame: Also given every captured frame with the head's name, in the capture
             thread (a recorder); it must return at once and never raise.
         overlap: Match the next frame while the previous one is finished (two threads).
+        matcher_nice: With ``overlap``: nice steps added to the matching thread (see
+            :func:`lower_thread_priority`).
     """
 
     def __init__(
@@ -94,12 +97,19 @@ class Head:
         open_source: OpenSource,
         on_frame: Callable[[str, StereoFrame], None] | None = None,
         overlap: bool = False,
+        matcher_nice: int = 0,
     ) -> None:
         self.config = config
         self._overlap = overlap
         # One thread per stage, always the same: the stages keep per-thread scratch arrays
         # (tens of MB at 640x480), which a shared pool would grow with every thread it adds.
-        self._match_pool = ThreadPoolExecutor(1, thread_name_prefix=f"match-{config.name}")
+        self._match_pool = ThreadPoolExecutor(
+            1,
+            thread_name_prefix=f"match-{config.name}",
+            initializer=functools.partial(lower_thread_priority, matcher_nice)
+            if overlap and matcher_nice
+            else None,
+        )
         self._finish_pool = (
             ThreadPoolExecutor(1, thread_name_prefix=f"finish-{config.name}")
             if overlap
@@ -384,3 +394,20 @@ class Head:
         if latest is None or scan is None or now_ns - latest.t_capture_ns > max_age_ns:
             return None
         return scan.expired(now_ns, max_age_ns)
+
+
+def lower_thread_priority(by: int) -> None:
+    """Make the calling thread ``by`` nicer than it is (Linux: nice is per thread).
+
+    The overlapped matcher runs with it (``pipeline.matcher_nice``); where per-thread nice is
+    not available the thread keeps its priority (logged at DEBUG).
+
+    Args:
+        by: Nice steps to add (the result is at most 19).
+    """
+    thread_id = threading.get_native_id()
+    try:
+        now = os.getpriority(os.PRIO_PROCESS, thread_id)
+        os.setpriority(os.PRIO_PROCESS, thread_id, min(19, now + by))
+    except (OSError, AttributeError) as exc:
+        logger.debug("matcher thread priority left as it is: %s", exc)
