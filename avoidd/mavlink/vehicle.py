@@ -312,19 +312,18 @@ class Vehicle:
             message.custom_mode,
             message.system_status,
         )
-        was_failsafe = self.mode is not None and self.mode.failsafe
-        if mode.failsafe != was_failsafe:
-            logger.warning(
-                "vehicle %d: %s",
-                self.system_id,
-                "failsafe in effect (HEARTBEAT system_status CRITICAL or worse)"
-                if mode.failsafe
-                else "failsafe over",
-            )
         if mode != self.mode:
             previous = self.mode
             if previous is None or previous.name != mode.name:
                 logger.info("vehicle %d: %s mode %s", self.system_id, mode.autopilot, mode.name)
+            if (previous is not None and previous.failsafe) != mode.failsafe:
+                logger.warning(
+                    "vehicle %d: %s",
+                    self.system_id,
+                    "failsafe in effect (HEARTBEAT system_status CRITICAL or worse)"
+                    if mode.failsafe
+                    else "failsafe over",
+                )
             if previous is not None and previous.armed != mode.armed:
                 logger.info("vehicle %d: %s", self.system_id, "armed" if mode.armed else "disarmed")
                 if mode.armed and self.home_up_m is not None:
