@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import json
+import os
 import subprocess
 import sys
 import time
@@ -362,6 +363,18 @@ def test_daemon_bench_compares_thread_counts_on_a_faster_camera(tmp_path: Path) 
         assert 0 < head["latency_ms"]["p50"] <= head["latency_ms"]["p99"]
         send = report["capture_to_send_ms"]
         assert 0 < send["p50"] <= send["p99"]
+        # Stage times: each stage was busy for part of the window, and a frame takes both.
+        assert head["match_ms"] > 0 and head["finish_ms"] > 0
+        assert 0 < head["match_busy"] <= 1.02 and 0 < head["finish_busy"] <= 1.02
+        assert head["latency_ms"]["p50"] >= 0.9 * (head["match_ms"] + head["finish_ms"])
+        assert 0 < report["cpu_cores_busy"] <= os.cpu_count() + 0.2
+        assert report["cpu_ms_per_frame"] > 0
+    # One thread runs a frame's stages one after the other, never together: their busy
+    # shares add up to at most the whole window. Two threads overlap them.
+    one, two = (report["heads"][0] for report in reports)
+    assert one["match_busy"] + one["finish_busy"] <= 1.02
+    assert two["match_busy"] + two["finish_busy"] > 1.0
+    assert "process CPU" in done.stdout and "(busy " in done.stdout
     assert "2 threads: " in done.stdout and "the one-thread frame rate" in done.stdout
 
 

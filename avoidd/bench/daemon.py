@@ -3,7 +3,9 @@
 The daemon runs in this process on a configuration's heads, with its link pointed at a UDP
 listener here in place of the autopilot (no autopilot speaks, so a stale scan is withheld, not
 sent). Over a window that starts once the first scan has arrived, the listener counts what it
-hears and the heads' counters say how many frames were processed.
+hears and the heads' counters say how many frames were processed, how long each stage took
+and what share of the window it was busy; the process's CPU time over the window says how
+much of the machine the daemon used.
 """
 
 from __future__ import annotations
@@ -18,6 +20,7 @@ import numpy as np
 
 from avoidd.config import AppConfig, SyntheticSourceConfig
 from avoidd.daemon import Daemon
+from avoidd.daemon.head import HeadStats
 from avoidd.loading import load_all
 from avoidd.mavlink import codec as mav
 from avoidd.mavlink.codec import Codec, Message
@@ -68,8 +71,10 @@ async def run_bench(
     Returns:
         Figures: the configured and measured OBSTACLE_DISTANCE rates, the share of scans
         that report an obstacle, scans withheld for stale data, HEARTBEAT states, the
-        capture-to-send latency of the scans (p50, p99), and per head the frames processed
-        per second and the capture-to-result latency (mean, p50, p99).
+        capture-to-send latency of the scans (p50, p99), the process's CPU (cores busy, ms
+        per processed frame), and per head the frames processed per second, the
+        capture-to-result latency (mean, p50, p99) and each stage's median time and busy
+        share (``match_ms``, ``finish_ms``, ``match_busy``, ``finish_busy``).
 
     Raises:
         RuntimeError: No scan arrived within a minute.
@@ -99,13 +104,17 @@ async def run_bench(
                 raise RuntimeError(f"{config_path}: no OBSTACLE_DISTANCE within a minute")
             await asyncio.sleep(0.02)
         start_s = time.monotonic()
+        cpu0_s = time.process_time()
         processed0 = {head.name: head.stats.processed for head in daemon.heads}
+        busy0 = {head.name: (head.stats.match_s, head.stats.finish_s) for head in daemon.heads}
         withheld0 = daemon.outputs.withheld if daemon.outputs is not None else 0
         await asyncio.sleep(seconds)
         wall_s = time.monotonic() - start_s
+        cpu_s = time.process_time() - cpu0_s
         processed = {
             head.name: head.stats.processed - processed0[head.name] for head in daemon.heads
         }
+        stages = {head.name: _stages(head.stats, busy0[head.name], wall_s) for head in daemon.heads}
         latency = {head.name: list(head.stats.latency_ms) for head in daemon.heads}
         threads_used = daemon.threads
         withheld = (daemon.outputs.withheld if daemon.outputs is not None else 0) - withheld0
@@ -135,6 +144,9 @@ async def run_bench(
         "withheld_stale": withheld,
         "threads": threads_used,
         "capture_to_send_ms": _percentiles(send_ms),
+        # The whole process (capture, stages, OpenCV's threads, the link) over the window.
+        "cpu_cores_busy": round(cpu_s / wall_s, 2),
+        "cpu_ms_per_frame": round(1000.0 * cpu_s / max(sum(processed.values()), 1), 1),
         "heartbeat_states": states,
         "heads": [
             {
@@ -144,6 +156,7 @@ async def run_bench(
                 if latency[name]
                 else 0.0,
                 "latency_ms": _percentiles(latency[name]),
+                **stages[name],
             }
             for name in processed
         ],
@@ -166,13 +179,35 @@ def format_report(report: dict[str, Any]) -> str:
         f"  {report['threads']} vision thread(s); capture to send p50 {send['p50']:.0f} ms, "
         f"p99 {send['p99']:.0f} ms"
     )
-    lines += [
-        f"  head {h['name']}: {h['fps']:.1f} fps processed, capture to result mean "
-        f"{h['mean_latency_ms']:.0f} ms, p50 {h['latency_ms']['p50']:.0f} ms, "
-        f"p99 {h['latency_ms']['p99']:.0f} ms"
-        for h in report["heads"]
-    ]
+    lines.append(
+        f"  process CPU {report['cpu_cores_busy']:.2f} cores busy, "
+        f"{report['cpu_ms_per_frame']:.0f} ms per processed frame"
+    )
+    for h in report["heads"]:
+        lines += [
+            f"  head {h['name']}: {h['fps']:.1f} fps processed, capture to result mean "
+            f"{h['mean_latency_ms']:.0f} ms, p50 {h['latency_ms']['p50']:.0f} ms, "
+            f"p99 {h['latency_ms']['p99']:.0f} ms",
+            f"    match {h['match_ms']:.0f} ms (busy {100 * h['match_busy']:.0f}%), finish "
+            f"{h['finish_ms']:.0f} ms (busy {100 * h['finish_busy']:.0f}%), medians",
+        ]
     return "\n".join(lines)
+
+
+def _stages(stats: HeadStats, busy0: tuple[float, float], wall_s: float) -> dict[str, float]:
+    """A head's stage times (medians, ms) and each stage's busy share of the window.
+
+    Args:
+        stats: The head's counters at the window's end.
+        busy0: Its ``match_s`` and ``finish_s`` at the window's start.
+        wall_s: The window's length.
+    """
+    return {
+        "match_ms": round(statistics.median(stats.match_ms), 1) if stats.match_ms else 0.0,
+        "finish_ms": round(statistics.median(stats.finish_ms), 1) if stats.finish_ms else 0.0,
+        "match_busy": round((stats.match_s - busy0[0]) / wall_s, 3),
+        "finish_busy": round((stats.finish_s - busy0[1]) / wall_s, 3),
+    }
 
 
 def _percentiles(values: list[float]) -> dict[str, float]:

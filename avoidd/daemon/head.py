@@ -54,7 +54,13 @@ class OpenSource(Protocol):
 
 @dataclass
 class HeadStats:
-    """Counters of one head (written by its capture thread and compute task)."""
+    """Counters of one head (written by its capture thread and compute task).
+
+    ``match_s`` and ``finish_s`` add up the wall time each stage took, from handing a frame
+    to its worker thread to having the result back: over a window, their growth divided by
+    the window's length is the share of the time the stage was busy (the busier one limits
+    the frame rate). ``match_ms`` and ``finish_ms`` keep the last stage times.
+    """
 
     captured: int = 0
     processed: int = 0
@@ -62,6 +68,10 @@ class HeadStats:
     source_errors: int = 0
     restarts: int = 0
     latency_ms: deque[float] = field(default_factory=lambda: deque(maxlen=256))
+    match_s: float = 0.0
+    finish_s: float = 0.0
+    match_ms: deque[float] = field(default_factory=lambda: deque(maxlen=256))
+    finish_ms: deque[float] = field(default_factory=lambda: deque(maxlen=256))
 
 
 class Head:
@@ -317,7 +327,7 @@ class Head:
         if not self._overlap:
             while True:
                 frame = await self.slot.get()
-                matched = await self._guarded(self._match_pool, frame, self.pipeline.match, frame)
+                matched = await self._match(frame)
                 if matched is not None:
                     await self._finish(matched)
         handoff: asyncio.Queue[Matched] = asyncio.Queue(maxsize=1)
@@ -337,18 +347,31 @@ class Head:
                 if finishing.done():
                     finishing.result()  # a finisher that died takes the task with it
                 frame = await self.slot.get()
-                matched = await self._guarded(self._match_pool, frame, self.pipeline.match, frame)
+                matched = await self._match(frame)
                 if matched is not None:
                     taken.clear()
                     handoff.put_nowait(matched)
         finally:
             finishing.cancel()
 
+    async def _match(self, frame: StereoFrame) -> Matched | None:
+        """Match one frame in the matcher's thread (None: dropped), timing the stage."""
+        started_s = time.perf_counter()
+        matched = await self._guarded(self._match_pool, frame, self.pipeline.match, frame)
+        took_s = time.perf_counter() - started_s
+        self.stats.match_s += took_s
+        self.stats.match_ms.append(took_s * 1000.0)
+        return matched
+
     async def _finish(self, matched: Matched) -> None:
         """Post-process, interpret and publish one matched frame."""
         frame = matched.frame
         pose = self._pose_for(frame)
+        started_s = time.perf_counter()
         result = await self._guarded(self._finish_pool, frame, self.pipeline.finish, matched, pose)
+        took_s = time.perf_counter() - started_s
+        self.stats.finish_s += took_s
+        self.stats.finish_ms.append(took_s * 1000.0)
         if result is None:
             return
         self._compute_failing = False
