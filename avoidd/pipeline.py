@@ -53,7 +53,8 @@ class HeadResult:
         scan: The head's 72-bin scan.
         depth_m: Depth map of the left view (NaN invalid).
         valid_fraction: Share of pixels with a valid disparity.
-        timing_ms: Milliseconds per stage (see ``STAGES``).
+        timing_ms: Milliseconds per stage (see ``STAGES``); ``match`` includes the near-field
+            pass, which runs at the start of :meth:`HeadPipeline.finish`.
         steps_ms: Milliseconds of each preprocessing step (``preprocess.resize`` ...), part of
             the ``preprocess`` stage.
         filled_depth_m: Hole-filled depth for display and recordings, when
@@ -93,9 +94,9 @@ class Matched(NamedTuple):
         left: The rectified, preprocessed left view (grey).
         right: The same of the right view.
         texture: Pixels the texture mask keeps, when the mask is on.
-        disparity: The matcher's disparity (NaN unmeasured), near-field pass applied.
+        disparity: The main matcher's disparity (NaN unmeasured); the near-field pass is
+            applied by :meth:`HeadPipeline.finish`.
         filled_by_matcher: Pixels the matcher filled rather than measured, when it says.
-        near_pixels: Pixels measured by the near-field pass.
         timing_ms: Milliseconds of the stages so far (rectify, preprocess, match).
         steps_ms: Milliseconds of each preprocessing step.
     """
@@ -106,7 +107,6 @@ class Matched(NamedTuple):
     texture: BoolArray | None
     disparity: FloatArray
     filled_by_matcher: BoolArray | None
-    near_pixels: int
     timing_ms: dict[str, float]
     steps_ms: dict[str, float]
 
@@ -267,24 +267,18 @@ class HeadPipeline:
         left, right, texture, steps_ms = self._preprocess(left, right)
         lap("preprocess")
         disparity = self._matcher.compute(left, right)
-        filled_by_matcher = self._matcher.last_filled
-        near_pixels = 0
-        if self.near_field is not None:
-            near = self.near_field.apply(left, right, disparity)
-            disparity, near_pixels = near.disparity, near.near_pixels
-            if filled_by_matcher is not None:
-                filled_by_matcher = filled_by_matcher & ~near.near  # measured, not filled
         lap("match")
         return Matched(
-            frame, left, right, texture, disparity, filled_by_matcher, near_pixels, lap.ms, steps_ms
+            frame, left, right, texture, disparity, self._matcher.last_filled, lap.ms, steps_ms
         )
 
     def finish(
         self, matched: Matched, pose: FramePose | None = None, with_obstacles: bool = False
     ) -> HeadResult:
-        """The second half of the stages: post-process, depth and perception.
+        """The second half of the stages: the near-field pass, post-process, depth, perception.
 
-        Safe to run in another thread than :meth:`match` (it only reads the head's settings).
+        Safe to run in another thread than :meth:`match` (the near-field pass has a matcher of
+        its own, and the rest only reads the head's settings), but never twice at the same time.
 
         Args:
             matched: What :meth:`match` made of the frame.
@@ -299,7 +293,19 @@ class HeadPipeline:
         """
         frame, left, right, texture = matched.frame, matched.left, matched.right, matched.texture
         disparity, filled_by_matcher = matched.disparity, matched.filled_by_matcher
+        timing_ms = dict(matched.timing_ms)
         lap = Laps()
+        near_pixels = 0
+        if self.near_field is not None:
+            # Here rather than in match(): with the stages overlapped this balances the two
+            # threads (the matching thread is the busier one), and the pass's own serial parts
+            # run while the other thread's SGBM keeps the second core busy.
+            near = self.near_field.apply(left, right, disparity)
+            disparity, near_pixels = near.disparity, near.near_pixels
+            if filled_by_matcher is not None:
+                filled_by_matcher = filled_by_matcher & ~near.near  # measured, not filled
+            lap("near")
+            timing_ms["match"] = timing_ms.get("match", 0.0) + lap.ms.pop("near")
         post = postprocess_disparity(left, right, disparity, self._post, texture, filled_by_matcher)
         disparity, textured, filled_display, sigma = post
         lap("post")
@@ -341,13 +347,13 @@ class HeadPipeline:
             seen.scan,
             depth,
             valid,
-            {**matched.timing_ms, **lap.ms},
+            {**timing_ms, **lap.ms},
             matched.steps_ms,
             filled_depth,
             seen.obstacles,
             seen.pose,
             seen.candidates,
-            matched.near_pixels,
+            near_pixels,
             left,
             seen.candidate_mask,
         )

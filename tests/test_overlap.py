@@ -14,9 +14,13 @@ import numpy as np
 from avoidd.bench.vision import _head, _matcher, synthetic_frames
 from avoidd.config import PerceptionConfig
 from avoidd.daemon.head import Head
+from avoidd.evaluation.near import near_suite
+from avoidd.evaluation.scenes import noisy_frame, suite_head
 from avoidd.loading import load_all
 from avoidd.pipeline import HeadPipeline, HeadResult, Matched
+from avoidd.sources.scene import render_pair
 from avoidd.types import FramePose, SectorScan, StereoFrame
+from avoidd.vision.calibration import Calibration
 
 ROOT = Path(__file__).resolve().parent.parent
 
@@ -40,6 +44,25 @@ def test_matching_the_next_frame_while_finishing_this_one_changes_no_result() ->
         np.testing.assert_array_equal(one.depth_m, two.depth_m)
         assert [o.distance_m for o in one.obstacles] == [o.distance_m for o in two.obstacles]
         assert set(one.timing_ms) == set(two.timing_ms) >= {"match", "post", "obstacles"}
+
+
+def test_the_near_field_pass_runs_in_the_finishing_half() -> None:
+    """The matching half hands on the main matcher's map alone; the finishing half adds the
+    near-field pass (it balances the two threads), and the result is what one call gives."""
+    case = near_suite(4, seed=3030)[0]  # a surface nearer than the main search range
+    frame = noisy_frame(case, render_pair(case.scene, case.rig), 1.5)
+    calibration = Calibration(case.rig, None, Path("near"))
+    pipeline = HeadPipeline(suite_head(case, 64), calibration, 20.0)
+    assert pipeline.near_field is not None
+    main_range_px = 64 - 1
+    matched = pipeline.match(frame)
+    assert np.nanmax(matched.disparity) <= main_range_px  # no near-field reading yet
+    finished = pipeline.finish(matched)
+    assert finished.near_pixels > 1000
+    whole = pipeline.process(frame)
+    assert whole.near_pixels == finished.near_pixels
+    np.testing.assert_array_equal(whole.depth_m, finished.depth_m)
+    assert whole.timing_ms.keys() == finished.timing_ms.keys() >= {"match", "post"}
 
 
 class _SlowPipeline:
@@ -73,7 +96,7 @@ class _SlowPipeline:
         time.sleep(self.stage_s)
         self._leave("match", frame.seq, started)
         empty = np.zeros((2, 2), np.float32)
-        return Matched(frame, frame.left, frame.right, None, empty, None, 0, {}, {})
+        return Matched(frame, frame.left, frame.right, None, empty, None, {}, {})
 
     def finish(self, matched: Matched, pose: FramePose | None = None) -> HeadResult:
         started = self._enter()
