@@ -296,17 +296,20 @@ class HeadPipeline:
         timing_ms = dict(matched.timing_ms)
         lap = Laps()
         near_pixels = 0
+        gate = None
         if self.near_field is not None:
             # Here rather than in match(): with the stages overlapped this balances the two
             # threads (the matching thread is the busier one), and the pass's own serial parts
             # run while the other thread's SGBM keeps the second core busy.
             near = self.near_field.apply(left, right, disparity)
-            disparity, near_pixels = near.disparity, near.near_pixels
+            disparity, near_pixels, gate = near.disparity, near.near_pixels, near.texture_gate
             if filled_by_matcher is not None:
                 filled_by_matcher = filled_by_matcher & ~near.near  # measured, not filled
             lap("near")
             timing_ms["match"] = timing_ms.get("match", 0.0) + lap.ms.pop("near")
-        post = postprocess_disparity(left, right, disparity, self._post, texture, filled_by_matcher)
+        post = postprocess_disparity(
+            left, right, disparity, self._post, texture, filled_by_matcher, gate
+        )
         disparity, textured, filled_display, sigma = post
         lap("post")
         band = self._matcher.num_disparities

@@ -8,8 +8,10 @@ import threading
 import time
 from concurrent.futures import ThreadPoolExecutor
 from pathlib import Path
+from typing import Any
 
 import numpy as np
+import pytest
 
 from avoidd.bench.vision import _head, _matcher, synthetic_frames
 from avoidd.config import PerceptionConfig
@@ -17,23 +19,43 @@ from avoidd.daemon.head import Head
 from avoidd.evaluation.near import near_suite
 from avoidd.evaluation.scenes import noisy_frame, suite_head
 from avoidd.loading import load_all
-from avoidd.pipeline import HeadPipeline, HeadResult, Matched
+from avoidd.pipeline import STAGES, HeadPipeline, HeadResult, Matched
 from avoidd.sources.scene import render_pair
 from avoidd.types import FramePose, SectorScan, StereoFrame
+from avoidd.vision import nearfield, postprocess
 from avoidd.vision.calibration import Calibration
+from avoidd.vision.postprocess import postprocess_disparity, texture_gate
 
 ROOT = Path(__file__).resolve().parent.parent
 
 
-def test_matching_the_next_frame_while_finishing_this_one_changes_no_result() -> None:
-    """The two halves share nothing mutable: run side by side they give what one thread gives."""
-    frame_set = synthetic_frames(320, 240, 6)
-    pipeline = HeadPipeline(_head(_matcher("sgbm", 64)), frame_set.calibration, 20.0)
-    sequential = [pipeline.process(frame, with_obstacles=True) for frame in frame_set.pairs]
+def _near_frames() -> tuple[HeadPipeline, list[StereoFrame]]:
+    """Rendered scenes with a surface nearer than the main search range (the near-field pass
+    finds it), one pipeline for all of them."""
+    cases = near_suite(4, seed=3030)
+    frames = [
+        noisy_frame(case, render_pair(case.scene, case.rig), 1.5)._replace(seq=seq)
+        for seq, case in enumerate(cases)
+    ]
+    calibration = Calibration(cases[0].rig, None, Path("near"))
+    return HeadPipeline(suite_head(cases[0], 64), calibration, 20.0), frames
+
+
+@pytest.mark.parametrize("scenes", ["rendered", "near"])
+def test_matching_the_next_frame_while_finishing_this_one_changes_no_result(scenes: str) -> None:
+    """The two halves share nothing mutable: run side by side they give what one thread gives
+    (near scenes: the near-field pass runs in the finishing half beside the next match)."""
+    if scenes == "near":
+        pipeline, frames = _near_frames()
+    else:
+        frame_set = synthetic_frames(320, 240, 6)
+        pipeline = HeadPipeline(_head(_matcher("sgbm", 64)), frame_set.calibration, 20.0)
+        frames = frame_set.pairs
+    sequential = [pipeline.process(frame, with_obstacles=True) for frame in frames]
     overlapped: list[HeadResult] = []
     with ThreadPoolExecutor(2) as pool:
-        matched = pipeline.match(frame_set.pairs[0])
-        for frame in [*frame_set.pairs[1:], None]:
+        matched = pipeline.match(frames[0])
+        for frame in [*frames[1:], None]:
             finishing = pool.submit(pipeline.finish, matched, None, True)
             if frame is not None:
                 matched = pool.submit(pipeline.match, frame).result()
@@ -43,7 +65,10 @@ def test_matching_the_next_frame_while_finishing_this_one_changes_no_result() ->
         np.testing.assert_array_equal(one.scan.distance_m, two.scan.distance_m)
         np.testing.assert_array_equal(one.depth_m, two.depth_m)
         assert [o.distance_m for o in one.obstacles] == [o.distance_m for o in two.obstacles]
-        assert set(one.timing_ms) == set(two.timing_ms) >= {"match", "post", "obstacles"}
+        assert set(one.timing_ms) == set(two.timing_ms) == set(STAGES)
+    if scenes == "near":
+        # Two of the four (a wall at 0.75 m, a pole at 0.43 m) lie in the near field.
+        assert sum(result.near_pixels > 1000 for result in overlapped) >= 2
 
 
 def test_the_near_field_pass_runs_in_the_finishing_half() -> None:
@@ -62,7 +87,35 @@ def test_the_near_field_pass_runs_in_the_finishing_half() -> None:
     whole = pipeline.process(frame)
     assert whole.near_pixels == finished.near_pixels
     np.testing.assert_array_equal(whole.depth_m, finished.depth_m)
-    assert whole.timing_ms.keys() == finished.timing_ms.keys() >= {"match", "post"}
+    assert set(whole.timing_ms) == set(finished.timing_ms) == set(STAGES)
+
+
+def test_a_near_frame_computes_the_texture_gate_once(monkeypatch: pytest.MonkeyPatch) -> None:
+    """The near-field pass and post-processing test the same view's texture with the same
+    window and threshold: the finishing half computes it once, and the map is the same."""
+    case = near_suite(4, seed=3030)[0]
+    frame = noisy_frame(case, render_pair(case.scene, case.rig), 1.5)
+    pipeline = HeadPipeline(suite_head(case, 64), Calibration(case.rig, None, Path("near")), 20.0)
+    assert pipeline.near_field is not None
+    matched = pipeline.match(frame)
+    near = pipeline.near_field.apply(matched.left, matched.right, matched.disparity)
+    assert near.texture_gate is not None  # the pass saw something near
+    config = suite_head(case, 64).postprocess
+    args = (matched.left, matched.right, near.disparity, config, matched.texture, None)
+    shared = postprocess_disparity(*args, near.texture_gate).disparity.copy()
+    fresh = postprocess_disparity(*args).disparity
+    np.testing.assert_array_equal(shared, fresh)
+    calls: list[int] = []
+
+    def counted(*args: Any, **kwargs: Any) -> Any:
+        calls.append(1)
+        return texture_gate(*args, **kwargs)
+
+    monkeypatch.setattr(postprocess, "texture_gate", counted)
+    monkeypatch.setattr(nearfield, "texture_gate", counted)
+    result = pipeline.finish(matched)
+    assert calls == [1]
+    np.testing.assert_array_equal(result.depth_m, pipeline.process(frame).depth_m)
 
 
 class _SlowPipeline:

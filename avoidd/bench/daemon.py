@@ -13,6 +13,7 @@ from __future__ import annotations
 import asyncio
 import statistics
 import time
+from collections.abc import Iterable
 from pathlib import Path
 from typing import Any
 
@@ -104,17 +105,22 @@ async def run_bench(
                 raise RuntimeError(f"{config_path}: no OBSTACLE_DISTANCE within a minute")
             await asyncio.sleep(0.02)
         start_s = time.monotonic()
-        cpu0_s = time.process_time()
+        cpu0_s, clock0_s = time.process_time(), time.perf_counter()
         processed0 = {head.name: head.stats.processed for head in daemon.heads}
-        busy0 = {head.name: (head.stats.match_s, head.stats.finish_s) for head in daemon.heads}
+        busy0 = {head.name: _busy_s(head.stats, clock0_s) for head in daemon.heads}
         withheld0 = daemon.outputs.withheld if daemon.outputs is not None else 0
         await asyncio.sleep(seconds)
         wall_s = time.monotonic() - start_s
-        cpu_s = time.process_time() - cpu0_s
+        cpu_s, clock1_s = time.process_time() - cpu0_s, time.perf_counter()
         processed = {
             head.name: head.stats.processed - processed0[head.name] for head in daemon.heads
         }
-        stages = {head.name: _stages(head.stats, busy0[head.name], wall_s) for head in daemon.heads}
+        stages = {
+            head.name: _stages(
+                head.stats, busy0[head.name], _busy_s(head.stats, clock1_s), clock0_s, clock1_s
+            )
+            for head in daemon.heads
+        }
         latency = {head.name: list(head.stats.latency_ms) for head in daemon.heads}
         threads_used = daemon.threads
         withheld = (daemon.outputs.withheld if daemon.outputs is not None else 0) - withheld0
@@ -146,7 +152,9 @@ async def run_bench(
         "capture_to_send_ms": _percentiles(send_ms),
         # The whole process (capture, stages, OpenCV's threads, the link) over the window.
         "cpu_cores_busy": round(cpu_s / wall_s, 2),
-        "cpu_ms_per_frame": round(1000.0 * cpu_s / max(sum(processed.values()), 1), 1),
+        "cpu_ms_per_frame": round(1000.0 * cpu_s / sum(processed.values()), 1)
+        if any(processed.values())
+        else 0.0,
         "heartbeat_states": states,
         "heads": [
             {
@@ -194,19 +202,38 @@ def format_report(report: dict[str, Any]) -> str:
     return "\n".join(lines)
 
 
-def _stages(stats: HeadStats, busy0: tuple[float, float], wall_s: float) -> dict[str, float]:
-    """A head's stage times (medians, ms) and each stage's busy share of the window.
+def _busy_s(stats: HeadStats, now_s: float) -> tuple[float, float]:
+    """Seconds a head's match and finish stages have been busy up to ``now_s``."""
+    return stats.match.busy_s(now_s), stats.finish.busy_s(now_s)
+
+
+def _stages(
+    stats: HeadStats,
+    busy0: tuple[float, float],
+    busy1: tuple[float, float],
+    start_s: float,
+    end_s: float,
+) -> dict[str, float]:
+    """A head's stage times within a window (medians, ms) and each stage's busy share of it.
 
     Args:
-        stats: The head's counters at the window's end.
-        busy0: Its ``match_s`` and ``finish_s`` at the window's start.
-        wall_s: The window's length.
+        stats: The head's counters.
+        busy0: Its stages' :func:`_busy_s` at the window's start.
+        busy1: The same at the window's end.
+        start_s: The window's start (``time.perf_counter``).
+        end_s: Its end.
     """
+
+    def median_ms(runs: Iterable[tuple[float, float]]) -> float:
+        inside = [ms for ended_s, ms in runs if start_s <= ended_s <= end_s]
+        return round(statistics.median(inside), 1) if inside else 0.0
+
+    window_s = end_s - start_s
     return {
-        "match_ms": round(statistics.median(stats.match_ms), 1) if stats.match_ms else 0.0,
-        "finish_ms": round(statistics.median(stats.finish_ms), 1) if stats.finish_ms else 0.0,
-        "match_busy": round((stats.match_s - busy0[0]) / wall_s, 3),
-        "finish_busy": round((stats.finish_s - busy0[1]) / wall_s, 3),
+        "match_ms": median_ms(stats.match.recent),
+        "finish_ms": median_ms(stats.finish.recent),
+        "match_busy": round((busy1[0] - busy0[0]) / window_s, 3),
+        "finish_busy": round((busy1[1] - busy0[1]) / window_s, 3),
     }
 
 

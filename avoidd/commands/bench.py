@@ -41,7 +41,7 @@ def configure(name: str, parser: argparse.ArgumentParser) -> None:
             "print how often it sends OBSTACLE_DISTANCE, how much of it is fresh, fps and latency",
         )
         parser.add_argument(
-            "--seconds", type=float, default=10.0, help="with --daemon: the measured window"
+            "--seconds", type=_seconds, default=10.0, help="with --daemon: the measured window"
         )
         parser.add_argument(
             "--threads",
@@ -65,7 +65,7 @@ def configure(name: str, parser: argparse.ArgumentParser) -> None:
             help="the daemon configuration to run (default: config/demo.yaml)",
         )
         parser.add_argument(
-            "--seconds", type=float, default=20.0, help="length of each measured window"
+            "--seconds", type=_seconds, default=20.0, help="length of each measured window"
         )
         parser.add_argument("--stream-fps", type=float, default=10.0, help="the view's frame rate")
         parser.add_argument("--json", type=Path, help="also write the figures as JSON")
@@ -77,7 +77,7 @@ def configure(name: str, parser: argparse.ArgumentParser) -> None:
         parser.set_defaults(handler=run_sim_bench)
     else:
         parser.add_argument("--rate", type=float, default=2000.0, help="messages per second")
-        parser.add_argument("--seconds", type=float, default=5.0, help="measurement length")
+        parser.add_argument("--seconds", type=_seconds, default=5.0, help="measurement length")
         parser.add_argument(
             "--asked",
             action="store_true",
@@ -86,6 +86,13 @@ def configure(name: str, parser: argparse.ArgumentParser) -> None:
         )
         parser.add_argument("--json", type=Path, help="also write the figures as JSON")
         parser.set_defaults(handler=run_link_bench)
+
+
+def _seconds(text: str) -> float:
+    value = float(text)
+    if not value > 0:  # NaN too
+        raise argparse.ArgumentTypeError(f"{text}: a measured window must last more than 0 s")
+    return value
 
 
 def run_vision_bench(args: argparse.Namespace) -> int:

@@ -53,13 +53,49 @@ class OpenSource(Protocol):
 
 
 @dataclass
+class StageClock:
+    """The wall time one stage of a head has been busy (``avoidd bench --daemon`` reads it).
+
+    A run lasts from handing a frame to the stage's thread to having its result back. Over a
+    window, the growth of :meth:`busy_s` divided by the window's length is the share of
+    the time the stage was busy (the busier stage limits the frame rate); a stage running at
+    either edge of the window is counted for the part inside it.
+    """
+
+    total_s: float = 0.0
+    since_s: float | None = None
+    recent: deque[tuple[float, float]] = field(default_factory=lambda: deque(maxlen=256))
+    """The last 256 runs: when each ended (``time.perf_counter``) and its milliseconds."""
+
+    def start(self) -> None:
+        """A run begins."""
+        self.since_s = time.perf_counter()
+
+    def stop(self) -> None:
+        """The run ends (also when it failed or was cancelled)."""
+        if self.since_s is None:
+            return
+        now_s = time.perf_counter()
+        self.total_s += now_s - self.since_s
+        self.recent.append((now_s, (now_s - self.since_s) * 1000.0))
+        self.since_s = None
+
+    def busy_s(self, now_s: float) -> float:
+        """Seconds busy up to ``now_s``, the run going on included.
+
+        Args:
+            now_s: A ``time.perf_counter`` reading.
+        """
+        return self.total_s + (now_s - self.since_s if self.since_s is not None else 0.0)
+
+
+@dataclass
 class HeadStats:
     """Counters of one head (written by its capture thread and compute task).
 
-    ``match_s`` and ``finish_s`` add up the wall time each stage took, from handing a frame
-    to its worker thread to having the result back: over a window, their growth divided by
-    the window's length is the share of the time the stage was busy (the busier one limits
-    the frame rate). ``match_ms`` and ``finish_ms`` keep the last stage times.
+    ``match`` and ``finish`` time the head's two stages as its threads run them (the
+    near-field pass is in ``finish``; ``avoidd bench`` and the stage metrics count it in the
+    matcher's ``match`` time instead).
     """
 
     captured: int = 0
@@ -68,10 +104,8 @@ class HeadStats:
     source_errors: int = 0
     restarts: int = 0
     latency_ms: deque[float] = field(default_factory=lambda: deque(maxlen=256))
-    match_s: float = 0.0
-    finish_s: float = 0.0
-    match_ms: deque[float] = field(default_factory=lambda: deque(maxlen=256))
-    finish_ms: deque[float] = field(default_factory=lambda: deque(maxlen=256))
+    match: StageClock = field(default_factory=StageClock)
+    finish: StageClock = field(default_factory=StageClock)
 
 
 class Head:
@@ -356,22 +390,23 @@ class Head:
 
     async def _match(self, frame: StereoFrame) -> Matched | None:
         """Match one frame in the matcher's thread (None: dropped), timing the stage."""
-        started_s = time.perf_counter()
-        matched = await self._guarded(self._match_pool, frame, self.pipeline.match, frame)
-        took_s = time.perf_counter() - started_s
-        self.stats.match_s += took_s
-        self.stats.match_ms.append(took_s * 1000.0)
-        return matched
+        self.stats.match.start()
+        try:
+            return await self._guarded(self._match_pool, frame, self.pipeline.match, frame)
+        finally:
+            self.stats.match.stop()
 
     async def _finish(self, matched: Matched) -> None:
         """Post-process, interpret and publish one matched frame."""
         frame = matched.frame
         pose = self._pose_for(frame)
-        started_s = time.perf_counter()
-        result = await self._guarded(self._finish_pool, frame, self.pipeline.finish, matched, pose)
-        took_s = time.perf_counter() - started_s
-        self.stats.finish_s += took_s
-        self.stats.finish_ms.append(took_s * 1000.0)
+        self.stats.finish.start()
+        try:
+            result = await self._guarded(
+                self._finish_pool, frame, self.pipeline.finish, matched, pose
+            )
+        finally:
+            self.stats.finish.stop()
         if result is None:
             return
         self._compute_failing = False

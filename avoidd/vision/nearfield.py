@@ -26,6 +26,7 @@ own left band is).
 
 from __future__ import annotations
 
+import dataclasses
 from dataclasses import dataclass
 
 import cv2
@@ -47,12 +48,16 @@ class NearFieldResult:
         near: Pixels whose disparity came from the coarse pass.
         saturated_pixels: Pixels at the end of the coarse range (read at the minimum range).
         blanked_pixels: Pixels dropped because a near surface could hide there unseen.
+        texture_gate: The left view's texture gate (:func:`~avoidd.vision.postprocess.texture_gate`
+            with the post-processing's window and threshold), when the pass computed it (only
+            when the coarse pass saw something near): post-processing can take it as it is.
     """
 
     disparity: FloatArray
     near: BoolArray
     saturated_pixels: int
     blanked_pixels: int
+    texture_gate: BoolArray | None = None
 
     @property
     def near_pixels(self) -> int:
@@ -154,6 +159,7 @@ class NearField:
             return self.merge(main, coarse)
         texture = self._texture
         found = candidates
+        gate = None
         if texture is not None and texture.min_texture_snr > 0:
             gate = texture_gate(left, texture.texture_window_px, texture.min_texture_snr)
             candidates = candidates & gate
@@ -164,7 +170,7 @@ class NearField:
             candidates.view(np.uint8), cv2.MORPH_OPEN, np.ones((side, side), np.uint8)
         )
         coarse[found & (kept == 0)] = np.nan
-        return self.merge(main, coarse)
+        return dataclasses.replace(self.merge(main, coarse), texture_gate=gate)
 
 
 def unseen_behind(disparity: FloatArray, near: BoolArray) -> BoolArray:

@@ -341,6 +341,7 @@ def postprocess_disparity(
     config: PostprocessConfig,
     texture: BoolArray | None = None,
     filled_by_matcher: BoolArray | None = None,
+    gate: BoolArray | None = None,
 ) -> PostResult:
     """Every post-processing step after the matcher, in order, on one disparity map.
 
@@ -357,6 +358,9 @@ def postprocess_disparity(
         config: The head's ``postprocess`` section.
         texture: The preprocessing's texture mask (True: textured), if any.
         filled_by_matcher: Pixels the matcher filled rather than measured, if any.
+        gate: The left view's :func:`texture_gate` with this ``config``'s window and
+            threshold, when already computed for this frame (the near-field pass computes it
+            when it sees something near); else it is computed here.
 
     Returns:
         The measured map, the textured pixels and the display map.
@@ -377,7 +381,8 @@ def postprocess_disparity(
         np.copyto(disparity, nan, where=~texture)  # untextured: not measured, never guessed
     textured = texture
     if config.min_texture_snr > 0:
-        gate = texture_gate(left, config.texture_window_px, config.min_texture_snr, sigma)
+        if gate is None:
+            gate = texture_gate(left, config.texture_window_px, config.min_texture_snr, sigma)
         np.copyto(disparity, nan, where=~gate)  # contrast below the noise: a guess
         textured = gate if textured is None else textured & gate
     if config.edge_radius_px:
