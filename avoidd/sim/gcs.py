@@ -33,7 +33,6 @@ GCS_SYSTEM_ID = 255
 GCS_COMPONENT_ID = 190  # MAV_COMP_ID_MISSIONPLANNER
 MAV_TYPE_GCS = 6
 MAV_PARAM_TYPE_REAL32 = 9
-MAV_PARAM_TYPE_INT32 = 6
 _FORCE_DISARM = 21196.0  # MAV_CMD_COMPONENT_ARM_DISARM param 2: disarm even when flying
 
 
@@ -212,9 +211,13 @@ class GroundStation:
             mav.MAV_CMD_SET_MESSAGE_INTERVAL, mav.message_id(name), interval_us
         )
 
-    async def set_param(self, name: str, value: float, integer: bool = False) -> bool:
-        """Set a parameter and wait for its PARAM_VALUE echo (up to five tries)."""
-        param_type = MAV_PARAM_TYPE_INT32 if integer else MAV_PARAM_TYPE_REAL32
+    async def set_param(self, name: str, value: float) -> bool:
+        """Set a REAL32 parameter and wait for its PARAM_VALUE echo (up to five tries).
+
+        Integer parameters are not offered: PX4 takes an INT32 as the integer's four bytes in
+        the float field, ArduPilot as the value converted to float.
+        """
+        param_type = MAV_PARAM_TYPE_REAL32
         for _ in range(5):
             echo = asyncio.ensure_future(
                 self.next_message(
