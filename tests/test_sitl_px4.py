@@ -232,9 +232,10 @@ async def test_px4_collision_prevention_stops_a_pushed_vehicle_on_avoidd_data(
     assert ahead, f"avoidd reported nothing ahead when the wall was {true_m:.2f} m away"
     assert abs(min(ahead) - true_m) <= max(0.3, 0.15 * true_m), (min(ahead), true_m)
     # PX4's merged map (streamed back on the GCS link) is what avoidd sent: each PX4 bin that
-    # holds a reading equals one avoidd sent for the same or a neighbouring bin (PX4 keeps its
-    # map in the local frame: a few degrees of yaw move a bearing to the next bin) within the
-    # second before. Checked during the push only: PX4 1.15 forgets a bin's reading after
+    # holds a reading equals one avoidd sent for the same or a neighbouring bin within the
+    # second before (PX4 1.15 keeps its map in the body frame, ten-degree bins from straight
+    # ahead, and fills each from the message bin at the ceiling of its angle, so a reading can
+    # land one bin over). Checked during the push only: PX4 1.15 forgets a bin's reading after
     # 0.5 s without news only while the stick asks for motion (CollisionPrevention's
     # _calculateConstrainedSetpoint), so before the push a bin avoidd no longer vouches for
     # keeps its last reading however old; from 0.5 s into the push every held reading is
