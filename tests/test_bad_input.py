@@ -313,3 +313,87 @@ def test_the_bad_input_benchmark_builds_every_case(tmp_path: Path) -> None:
     assert all(path.is_file() for _, path in built)
     assert "yaml: alias bomb" in names
     assert "frames.csv: 70 MB, larger than the 64 MB an index may be" in names
+
+
+def _fake_sitl(folder: Path, binary: str, others: tuple[str, ...]) -> Path:
+    """A SITL folder whose binary only leaves a mark when run (it must never be)."""
+    mark = folder / "started"
+    path = folder / binary
+    path.parent.mkdir(parents=True, exist_ok=True)
+    path.write_text(f"#!/bin/sh\ntouch {mark}\n")
+    path.chmod(0o755)
+    for name in others:
+        (folder / name).mkdir(parents=True, exist_ok=True)
+    return mark
+
+
+@pytest.mark.parametrize(
+    ("autopilot", "scenario", "needs", "variable"),
+    [
+        ("px4", "sitl/px4/wall-stop.yaml", "bin/px4 and etc", "$AVOIDD_PX4_SITL_DIR"),
+        (
+            "ardupilot",
+            "sitl/ardupilot/wall-stop.yaml",
+            "arducopter and copter.parm",
+            "$AVOIDD_SITL_DIR",
+        ),
+    ],
+)
+def test_sim_against_a_sitl_folder_without_the_autopilot_names_it_and_the_remedy(
+    autopilot: str,
+    scenario: str,
+    needs: str,
+    variable: str,
+    tmp_path: Path,
+    capsys: pytest.CaptureFixture[str],
+) -> None:
+    empty = tmp_path / "no-sitl-here"
+    empty.mkdir()
+    code = main(["sim", autopilot, str(REPO / scenario), "--binary-dir", str(empty)])
+    assert code == 2
+    line = _one_line(capsys.readouterr().err.splitlines(), f"--binary-dir {empty}:", variable)
+    assert f"the folder holding {needs}" in line, line
+
+
+@pytest.mark.parametrize(
+    ("argv", "binary", "others", "fragments"),
+    [
+        (
+            ["px4", "sitl/px4/wall-stop.yaml", "--cp-dist", "0"],
+            "bin/px4",
+            ("etc",),
+            ("--cp-dist 0.0", "CP_DIST"),
+        ),
+        (
+            ["px4", "sitl/px4/wall-stop.yaml", "--cp-dist", "16"],
+            "bin/px4",
+            ("etc",),
+            ("--cp-dist 16.0",),
+        ),
+        (
+            ["ardupilot", "sitl/ardupilot/wall-stop.yaml", "--avoid-margin", "0.5"],
+            "arducopter",
+            ("copter.parm",),
+            ("--avoid-margin 0.5", "AVOID_MARGIN"),
+        ),
+        (
+            ["ardupilot", "sitl/ardupilot/wall-stop.yaml", "--push", "20"],
+            "arducopter",
+            ("copter.parm",),
+            ("--push 20.0", "0.1 to 10 m/s"),
+        ),
+    ],
+)
+def test_sim_against_sitl_refuses_autopilot_settings_out_of_range_before_starting_it(
+    argv: list[str],
+    binary: str,
+    others: tuple[str, ...],
+    fragments: tuple[str, ...],
+    tmp_path: Path,
+    capsys: pytest.CaptureFixture[str],
+) -> None:
+    mark = _fake_sitl(tmp_path, binary, others)
+    argv = [argv[0], str(REPO / argv[1]), *argv[2:], "--binary-dir", str(tmp_path)]
+    assert main(["sim", *argv]) == 2
+    _one_line(capsys.readouterr().err.splitlines(), *fragments)
+    assert not mark.exists(), "the autopilot was started"

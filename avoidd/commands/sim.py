@@ -154,9 +154,18 @@ def run_ardupilot(args: argparse.Namespace) -> int:
     from avoidd.config.sim import load_scenario
     from avoidd.sim.external import ExternalRun
 
-    scenario = load_scenario(args.scenario)
+    problems = _sitl_folder_problems(
+        args.binary_dir, ("arducopter", "copter.parm"), "AVOIDD_SITL_DIR", "ArduCopter SITL"
+    )
     if args.push is not None and not 0.1 <= args.push <= 10.0:
-        raise ConfigError([f"--push {args.push}: give 0.1 to 10 m/s"])
+        problems.append(f"--push {args.push}: give 0.1 to 10 m/s")
+    if args.avoid_margin is not None and not 1.0 <= args.avoid_margin <= 10.0:
+        problems.append(
+            f"--avoid-margin {args.avoid_margin}: give 1 to 10 m (ArduPilot's AVOID_MARGIN range)"
+        )
+    if problems:
+        raise ConfigError(problems)
+    scenario = load_scenario(args.scenario)
     run = ExternalRun(
         scenario,
         args.binary_dir,
@@ -168,6 +177,31 @@ def run_ardupilot(args: argparse.Namespace) -> int:
     return _report(summary, args.json)
 
 
+def _sitl_folder_problems(
+    folder: Path, needs: tuple[str, ...], variable: str, what: str
+) -> list[str]:
+    """What is missing from a SITL folder, one line each naming the remedy (empty: none).
+
+    Args:
+        folder: The folder given (``--binary-dir`` or its default).
+        needs: Paths inside it that must exist; the first is the binary (must be executable).
+        variable: The environment variable that sets the default.
+        what: The autopilot, for the messages.
+
+    Returns:
+        The problems.
+    """
+    binary, *others = needs
+    missing = [name for name in others if not (folder / name).exists()]
+    if os.access(folder / binary, os.X_OK) and not missing:
+        return []
+    lacks = ([] if os.access(folder / binary, os.X_OK) else [f"{binary} (executable)"]) + missing
+    return [
+        f"--binary-dir {folder}: no {what} here (missing {', '.join(lacks)}); give "
+        f"--binary-dir or set ${variable} to the folder holding {' and '.join(needs)}"
+    ]
+
+
 def run_px4(args: argparse.Namespace) -> int:
     """Fly one scenario against PX4 SITL; exit 0 when it passes its criteria."""
     import asyncio
@@ -175,6 +209,17 @@ def run_px4(args: argparse.Namespace) -> int:
     from avoidd.config.sim import load_scenario
     from avoidd.sim.px4_run import Px4Run
 
+    problems = _sitl_folder_problems(
+        args.binary_dir, ("bin/px4", "etc"), "AVOIDD_PX4_SITL_DIR", "PX4 SITL"
+    )
+    if args.cp_dist is not None and not 0.0 < args.cp_dist <= 15.0:
+        # PX4 takes -1 to 15; 0 or less switches collision prevention off.
+        problems.append(
+            f"--cp-dist {args.cp_dist}: give more than 0 and at most 15 m (PX4's CP_DIST; "
+            "0 or less would switch its collision prevention off)"
+        )
+    if problems:
+        raise ConfigError(problems)
     scenario = load_scenario(args.scenario)
     run = Px4Run(
         scenario,
