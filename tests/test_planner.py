@@ -17,7 +17,7 @@ from avoidd.planner.core import (
     effective_latency_s,
     stopping_speed_m_s,
 )
-from avoidd.planner.gating import Facts, Gate, gate
+from avoidd.planner.gating import Facts, Gate, Handover, gate
 from avoidd.planner.geometry import directions_rad, free_distance
 from avoidd.planner.memory import ObstacleMemory, bearing_bins
 from avoidd.planner.visibility import VisibilityGrid
@@ -242,6 +242,39 @@ def test_gate_never_fights_the_pilot_and_holds_on_stale_perception() -> None:
     assert gate(_facts(setpoint_mode=False, px4=True, autopilot_failsafe=True)) is Gate.SILENT
     assert gate(_facts(autopilot_failsafe=True)) is Gate.PLAN  # in OFFBOARD: flies as before
     assert gate(_facts(setpoint_mode=False, fresh=False)) is Gate.SILENT
+
+
+def test_handover_the_pilot_has_the_vehicle_after_leaving_the_setpoint_mode_until_a_new_goal() -> (
+    None
+):
+    handover = Handover()
+    handover.new_goal()
+    assert not handover.update(True, armed=True, setpoint_mode=False, link_up=True)  # POSCTL
+    assert not handover.update(True, armed=True, setpoint_mode=True, link_up=True)  # OFFBOARD
+    # A heartbeat lost says nothing about the mode: not a takeover.
+    assert not handover.update(True, armed=True, setpoint_mode=False, link_up=False)
+    assert not handover.update(True, armed=True, setpoint_mode=True, link_up=True)
+    assert handover.update(True, armed=True, setpoint_mode=False, link_up=True)  # switched away
+    assert handover.update(True, armed=True, setpoint_mode=True, link_up=True)  # still the pilot's
+    handover.new_goal()
+    assert not handover.taken_over
+    assert handover.update(True, armed=True, setpoint_mode=True, link_up=True) is False
+    assert handover.update(True, armed=True, setpoint_mode=False, link_up=True)
+    assert not handover.update(True, armed=False, setpoint_mode=False, link_up=True)  # disarmed
+    assert not handover.update(False, armed=False, setpoint_mode=False, link_up=True)
+
+
+def test_handover_armed_in_another_mode_at_first_sight_is_the_pilots_unless_a_goal_came_first() -> (
+    None
+):
+    first = Handover()
+    assert not first.update(False, armed=False, setpoint_mode=False, link_up=False)
+    assert first.update(True, armed=True, setpoint_mode=False, link_up=True)
+    assert not Handover().update(True, armed=True, setpoint_mode=True, link_up=True)
+    assert not Handover().update(True, armed=False, setpoint_mode=False, link_up=True)
+    with_goal = Handover()
+    with_goal.new_goal()
+    assert not with_goal.update(True, armed=True, setpoint_mode=False, link_up=True)
 
 
 # --- decisions ---------------------------------------------------------------------------

@@ -246,6 +246,26 @@ def test_a_mode_change_away_silences_the_planner() -> None:
     assert after and all(r.gate == "silent" and r.setpoint is None for r in after)
 
 
+def test_px4_pilot_switching_out_of_offboard_ends_the_prestream_as_in_the_daemon() -> None:
+    """The simulator's gate is the daemon's, handover included: PX4 streams hold-here setpoints
+    before OFFBOARD, flies in it, and once the pilot switches to Position mode nothing more is
+    sent (a prestream then would let PX4 return to OFFBOARD by itself after a failsafe)."""
+    timeline = [
+        {"t_s": 2.0, "action": "mode", "mode": "OFFBOARD"},  # after a second of stream
+        {"t_s": 4.0, "action": "mode", "mode": "POSCTL"},
+    ]
+    scenario = _scenario("oracle", 6.0, autopilot="px4", timeline=timeline)
+    run = LockstepRun(scenario, _world([]), Goal(30, 0, 2))
+    run.run()
+    before = [r for r in run.rows if r.t_s < 1.95]
+    flying = [r for r in run.rows if 2.1 <= r.t_s < 3.95]
+    after = [r for r in run.rows if r.t_s >= 4.05]
+    assert before and all(r.gate == "prestream" and r.setpoint is not None for r in before)
+    assert flying and all(r.gate == "plan" for r in flying)
+    assert after and all(r.gate == "silent" and r.setpoint is None for r in after)
+    assert all(r.mode == "POSCTL" for r in after)
+
+
 # --- scenario files and the sim command --------------------------------------------------
 
 

@@ -43,7 +43,7 @@ from avoidd.mavlink.mission import MissionClient
 from avoidd.mavlink.modes import ARDUPILOT, PX4
 from avoidd.mavlink.vehicle import Vehicle
 from avoidd.planner.core import Decision, Goal, Planner, Pose
-from avoidd.planner.gating import Facts, Gate, gate
+from avoidd.planner.gating import Facts, Gate, Handover, gate
 from avoidd.planner.track import track_velocity_ne
 
 logger = logging.getLogger(__name__)
@@ -118,10 +118,8 @@ class AvoidanceLoop:
         self.last_pose: Pose | None = None
         """The vehicle's state the last decision was made with (None: none known)."""
         self._switched_off_ns = -(10**18)
-        self._was_setpoint_mode = False
-        self._mode_seen = False
-        self.taken_over = False
-        """Armed, the vehicle left the setpoint mode since the goal was set (no prestream)."""
+        self.handover = Handover()
+        """Whether the pilot has taken the vehicle since the goal was set (no prestream)."""
         self.sent = 0
         self.last_sent_ns = 0
         """``time.monotonic_ns()`` when the last setpoint was sent (0: none yet)."""
@@ -131,27 +129,22 @@ class AvoidanceLoop:
         mode = self.vehicle.mode
         armed = mode is not None and mode.armed
         setpoint_mode = mode is not None and mode.guided
-        if mode is not None and not self._mode_seen:
-            # Started (or restarted) while the vehicle flies in another mode: someone else
-            # flies it. PX4 returns to OFFBOARD by itself when setpoints come back after its
-            # offboard-loss failsafe, so a prestream here would take control (seen).
-            self._mode_seen = True
-            self.taken_over = armed and not setpoint_mode
-        if not armed:
-            self.taken_over = False
-        elif self._was_setpoint_mode and not setpoint_mode and self.vehicle.link_up:
-            self.taken_over = True
-        self._was_setpoint_mode = setpoint_mode and armed
+        # Started (or restarted) while the vehicle flies in another mode, someone else flies
+        # it: PX4 returns to OFFBOARD by itself when setpoints come back after its
+        # offboard-loss failsafe, so a prestream then would take control (seen).
+        taken_over = self.handover.update(
+            mode is not None, armed, setpoint_mode, self.vehicle.link_up
+        )
         return Facts(
             enabled=self.config.enabled,
             link_up=self.vehicle.link_up,
-            armed=mode is not None and mode.armed,
-            setpoint_mode=mode is not None and mode.guided,
+            armed=armed,
+            setpoint_mode=setpoint_mode,
             px4=mode is not None and mode.autopilot == PX4,
             goal=self.goal is not None,
             fresh=fresh,
             prestream=self.config.px4_prestream,
-            taken_over=self.taken_over,
+            taken_over=taken_over,
             autopilot_failsafe=mode is not None and mode.failsafe,
         )
 
@@ -457,11 +450,10 @@ class AvoidanceLoop:
     def set_goal(self, goal: Goal) -> None:
         """Fly to a new goal from now on (the obstacle memory is kept)."""
         self.goal = goal
-        self.taken_over = False
         # A goal given after avoidd started supersedes the rule about the mode it found at
         # start: without this, a goal that arrives before the first heartbeat is decoded
         # would be followed by "armed in another mode at start" and no prestream (seen).
-        self._mode_seen = True
+        self.handover.new_goal()
         self.planner.reset()
         logger.info(
             "avoidance: new %s: %.1f m north, %.1f m east, %.1f m up",

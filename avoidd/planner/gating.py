@@ -5,7 +5,7 @@ A pure rule over the facts the daemon (and the simulator) know each cycle.
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from enum import Enum
 
 
@@ -70,3 +70,47 @@ def gate(facts: Facts) -> Gate:
         )
         return Gate.PRESTREAM if prestream else Gate.SILENT
     return Gate.PLAN if facts.fresh else Gate.HOLD
+
+
+@dataclass
+class Handover:
+    """Whether the pilot has taken the vehicle from avoidd (:attr:`Facts.taken_over`).
+
+    The pilot has it once the armed vehicle leaves the setpoint mode (while the link is up:
+    a lost link says nothing about the mode), and also when avoidd first sees the vehicle
+    armed in another mode, unless a goal was given before that (someone else flies it, and
+    PX4 returns to OFFBOARD by itself when setpoints come back after its offboard-loss
+    failsafe). Disarming or a new goal hands it back.
+    """
+
+    taken_over: bool = False
+    _was_setpoint_mode: bool = field(default=False, repr=False)
+    _mode_seen: bool = field(default=False, repr=False)
+
+    def update(self, mode_known: bool, armed: bool, setpoint_mode: bool, link_up: bool) -> bool:
+        """Take this cycle's mode into account.
+
+        Args:
+            mode_known: A heartbeat has said the mode (False: none yet, or the autopilot
+                changed; then ``armed`` and ``setpoint_mode`` are False).
+            armed: The vehicle is armed.
+            setpoint_mode: Its mode flies velocity setpoints.
+            link_up: The autopilot's heartbeat is fresh.
+
+        Returns:
+            Whether the pilot has the vehicle now.
+        """
+        if mode_known and not self._mode_seen:
+            self._mode_seen = True
+            self.taken_over = armed and not setpoint_mode
+        if not armed:
+            self.taken_over = False
+        elif self._was_setpoint_mode and not setpoint_mode and link_up:
+            self.taken_over = True
+        self._was_setpoint_mode = setpoint_mode and armed
+        return self.taken_over
+
+    def new_goal(self) -> None:
+        """A goal was given: avoidd may fly again, whatever mode it first saw."""
+        self.taken_over = False
+        self._mode_seen = True

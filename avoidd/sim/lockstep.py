@@ -23,7 +23,7 @@ from avoidd.mavlink.messages import sectors_to_cm
 from avoidd.mavlink.track_history import TrackHistory
 from avoidd.perception.sectors import covered_bins
 from avoidd.planner.core import Decision, Goal, Planner, Pose
-from avoidd.planner.gating import Facts, Gate, gate
+from avoidd.planner.gating import Facts, Gate, Handover, gate
 from avoidd.planner.track import track_velocity_ne
 from avoidd.sim.flight import SimAutopilot
 from avoidd.sim.perception import StereoPerception
@@ -137,6 +137,8 @@ class LockstepRun:
         self.mount = Mount()
         self.covered = covered_bins(self.rig, self.mount)
         self.planner = Planner(avoidance, MAX_RANGE_M)
+        self.handover = Handover()
+        self.handover.new_goal()  # the goal is given before the first cycle
         self.autopilot = SimAutopilot(
             flavour=scenario.autopilot,
             mode="GUIDED" if scenario.autopilot == "ardupilot" else "POSCTL",
@@ -286,6 +288,7 @@ class LockstepRun:
         elif action.action == "goal":
             g = action.goal
             self.goal = Goal(g.north_m, g.east_m, g.altitude_m)
+            self.handover.new_goal()
             self.planner.reset()
         elif action.action == "camera_unplug":
             self.camera_on = False
@@ -305,15 +308,17 @@ class LockstepRun:
     def _plan(
         self, now_ns: int, fresh: SectorScan | None
     ) -> tuple[Gate, Decision, list[float] | None]:
+        armed, setpoint_mode = self.autopilot.armed, self.autopilot.takes_setpoints
         facts = Facts(
             enabled=True,
             link_up=True,
-            armed=self.autopilot.armed,
-            setpoint_mode=self.autopilot.takes_setpoints,
+            armed=armed,
+            setpoint_mode=setpoint_mode,
             px4=self.autopilot.flavour == "px4",
             goal=self.goal is not None,
             fresh=fresh is not None,
             prestream=self.scenario.avoidance.px4_prestream,
+            taken_over=self.handover.update(True, armed, setpoint_mode, link_up=True),
         )
         verdict = gate(facts)
         pose = self._pose(now_ns)
