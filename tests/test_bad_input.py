@@ -346,13 +346,50 @@ def test_sim_against_a_sitl_folder_without_the_autopilot_names_it_and_the_remedy
     variable: str,
     tmp_path: Path,
     capsys: pytest.CaptureFixture[str],
+    monkeypatch: pytest.MonkeyPatch,
 ) -> None:
     empty = tmp_path / "no-sitl-here"
     empty.mkdir()
     code = main(["sim", autopilot, str(REPO / scenario), "--binary-dir", str(empty)])
     assert code == 2
-    line = _one_line(capsys.readouterr().err.splitlines(), f"--binary-dir {empty}:", variable)
-    assert f"the folder holding {needs}" in line, line
+    line = _one_line(capsys.readouterr().err.splitlines(), f"--binary-dir {empty}:")
+    assert f"give --binary-dir the folder holding {needs}" in line, line
+    # Not given: the default comes from the variable, and the line says so.
+    monkeypatch.setenv(variable.lstrip("$"), str(empty))
+    assert main(["sim", autopilot, str(REPO / scenario)]) == 2
+    line = _one_line(capsys.readouterr().err.splitlines(), f"{empty} ({variable}):")
+    assert f"set {variable} to the folder holding {needs}" in line, line
+    # Without the variable either: the built-in default, shown as the full path it tried.
+    monkeypatch.delenv(variable.lstrip("$"))
+    monkeypatch.chdir(tmp_path)
+    assert main(["sim", autopilot, str(REPO / scenario)]) == 2
+    fallback = (tmp_path / ".." / "shared" / "sitl" / autopilot).absolute()
+    _one_line(capsys.readouterr().err.splitlines(), f"{fallback} (the default, {variable} unset)")
+
+
+def test_sim_against_sitl_takes_a_folder_named_like_the_binary_for_no_binary(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    (tmp_path / "bin" / "px4").mkdir(parents=True)  # a folder is "executable" to os.access
+    (tmp_path / "etc").mkdir()
+    argv = ["sim", "px4", str(REPO / "sitl/px4/wall-stop.yaml"), "--binary-dir", str(tmp_path)]
+    assert main(argv) == 2
+    _one_line(capsys.readouterr().err.splitlines(), "missing bin/px4 (an executable file)")
+
+
+def test_sim_against_sitl_reports_a_bad_scenario_and_a_bad_setting_together(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    mark = _fake_sitl(tmp_path, "bin/px4", ("etc",))
+    scenario = tmp_path / "broken.yaml"
+    scenario.write_text("version: 1\nname: broken\nduration_s: -5\n")
+    argv = ["sim", "px4", str(scenario), "--cp-dist", "0", "--binary-dir", str(tmp_path)]
+    assert main(argv) == 2
+    lines = capsys.readouterr().err.splitlines()
+    assert lines[-1] == "configuration invalid; nothing was started"
+    assert "--cp-dist 0.0" in lines[0], lines
+    assert any(str(scenario) in line for line in lines[1:-1]), lines
+    assert not mark.exists()
 
 
 @pytest.mark.parametrize(

@@ -18,6 +18,11 @@ from avoidd.errors import ConfigError
 if TYPE_CHECKING:
     from avoidd.config.sim import ScenarioConfig, WorldConfig
 
+_ARDUPILOT_DIR = Path("../shared/sitl/ardupilot")
+"""ArduCopter SITL's folder when neither ``--binary-dir`` nor ``$AVOIDD_SITL_DIR`` says."""
+_PX4_DIR = Path("../shared/sitl/px4")
+"""PX4 SITL's folder when neither ``--binary-dir`` nor ``$AVOIDD_PX4_SITL_DIR`` says."""
+
 
 def configure(name: str, parser: argparse.ArgumentParser) -> None:
     """Add ``sim run`` and ``sim batch``."""
@@ -59,8 +64,8 @@ def configure(name: str, parser: argparse.ArgumentParser) -> None:
     sitl.add_argument(
         "--binary-dir",
         type=Path,
-        default=Path(os.environ.get("AVOIDD_SITL_DIR", "../shared/sitl/ardupilot")),
-        help="folder with arducopter and copter.parm (default: $AVOIDD_SITL_DIR)",
+        help="folder with arducopter and copter.parm (default: $AVOIDD_SITL_DIR, else "
+        f"{_ARDUPILOT_DIR})",
     )
     sitl.add_argument(
         "--push",
@@ -69,7 +74,7 @@ def configure(name: str, parser: argparse.ArgumentParser) -> None:
         help="planner off: push the vehicle at the goal at this speed; ArduPilot's own "
         "avoidance must stop it on avoidd's data",
     )
-    sitl.add_argument("--avoid-margin", type=float, help="ArduPilot's AVOID_MARGIN, metres")
+    sitl.add_argument("--avoid-margin", type=float, help="ArduPilot's AVOID_MARGIN, 1 to 10 metres")
     sitl.add_argument("--json", type=Path, help="write the summary and every sample as JSON")
     sitl.set_defaults(handler=run_ardupilot)
     px4 = actions.add_parser(
@@ -79,8 +84,7 @@ def configure(name: str, parser: argparse.ArgumentParser) -> None:
     px4.add_argument(
         "--binary-dir",
         type=Path,
-        default=Path(os.environ.get("AVOIDD_PX4_SITL_DIR", "../shared/sitl/px4")),
-        help="folder with bin/px4 and etc/ (default: $AVOIDD_PX4_SITL_DIR)",
+        help=f"folder with bin/px4 and etc/ (default: $AVOIDD_PX4_SITL_DIR, else {_PX4_DIR})",
     )
     px4.add_argument(
         "--push",
@@ -88,7 +92,7 @@ def configure(name: str, parser: argparse.ArgumentParser) -> None:
         help="planner off: full forward stick in Position mode; PX4's collision prevention "
         "must stop the vehicle on avoidd's data",
     )
-    px4.add_argument("--cp-dist", type=float, help="PX4's CP_DIST, metres")
+    px4.add_argument("--cp-dist", type=float, help="PX4's CP_DIST, metres: more than 0, at most 15")
     px4.add_argument("--json", type=Path, help="write the summary and every sample as JSON")
     px4.set_defaults(handler=run_px4)
 
@@ -151,11 +155,14 @@ def run_ardupilot(args: argparse.Namespace) -> int:
     """Fly one scenario against ArduCopter SITL; exit 0 when it passes its criteria."""
     import asyncio
 
-    from avoidd.config.sim import load_scenario
     from avoidd.sim.external import ExternalRun
 
-    problems = _sitl_folder_problems(
-        args.binary_dir, ("arducopter", "copter.parm"), "AVOIDD_SITL_DIR", "ArduCopter SITL"
+    folder, problems = _sitl_folder(
+        args.binary_dir,
+        "AVOIDD_SITL_DIR",
+        _ARDUPILOT_DIR,
+        ("arducopter", "copter.parm"),
+        "ArduCopter SITL",
     )
     if args.push is not None and not 0.1 <= args.push <= 10.0:
         problems.append(f"--push {args.push}: give 0.1 to 10 m/s")
@@ -163,12 +170,10 @@ def run_ardupilot(args: argparse.Namespace) -> int:
         problems.append(
             f"--avoid-margin {args.avoid_margin}: give 1 to 10 m (ArduPilot's AVOID_MARGIN range)"
         )
-    if problems:
-        raise ConfigError(problems)
-    scenario = load_scenario(args.scenario)
+    scenario = _scenario_noting(args.scenario, problems)
     run = ExternalRun(
         scenario,
-        args.binary_dir,
+        folder,
         mode="push" if args.push is not None else "planner",
         push_speed_m_s=args.push or 2.0,
         avoid_margin_m=args.avoid_margin,
@@ -177,40 +182,69 @@ def run_ardupilot(args: argparse.Namespace) -> int:
     return _report(summary, args.json)
 
 
-def _sitl_folder_problems(
-    folder: Path, needs: tuple[str, ...], variable: str, what: str
-) -> list[str]:
-    """What is missing from a SITL folder, one line each naming the remedy (empty: none).
+def _sitl_folder(
+    given: Path | None, variable: str, fallback: Path, needs: tuple[str, ...], what: str
+) -> tuple[Path, list[str]]:
+    """The SITL folder to use, and what is missing from it (one line naming the remedy).
 
     Args:
-        folder: The folder given (``--binary-dir`` or its default).
-        needs: Paths inside it that must exist; the first is the binary (must be executable).
+        given: ``--binary-dir`` (None: not given).
         variable: The environment variable that sets the default.
-        what: The autopilot, for the messages.
+        fallback: The default without that variable.
+        needs: Paths inside the folder that must exist; the first is the binary (an
+            executable file).
+        what: The autopilot, for the message.
 
     Returns:
-        The problems.
+        The folder, and its problems (empty: none).
     """
+    folder = given if given is not None else Path(os.environ.get(variable) or fallback)
     binary, *others = needs
-    missing = [name for name in others if not (folder / name).exists()]
-    if os.access(folder / binary, os.X_OK) and not missing:
-        return []
-    lacks = ([] if os.access(folder / binary, os.X_OK) else [f"{binary} (executable)"]) + missing
-    return [
-        f"--binary-dir {folder}: no {what} here (missing {', '.join(lacks)}); give "
-        f"--binary-dir or set ${variable} to the folder holding {' and '.join(needs)}"
+    lacks = [] if _executable(folder / binary) else [f"{binary} (an executable file)"]
+    lacks += [name for name in others if not (folder / name).exists()]
+    if not lacks:
+        return folder, []
+    if given is not None:
+        subject, remedy = f"--binary-dir {folder.absolute()}", "give --binary-dir"
+    else:
+        origin = f"${variable}" if os.environ.get(variable) else f"the default, ${variable} unset"
+        subject = f"{folder.absolute()} ({origin})"
+        remedy = f"give --binary-dir or set ${variable} to"
+    return folder, [
+        f"{subject}: no {what} here (missing {', '.join(lacks)}); {remedy} the folder holding "
+        f"{' and '.join(needs)}"
     ]
+
+
+def _executable(path: Path) -> bool:
+    return path.is_file() and os.access(path, os.X_OK)
+
+
+def _scenario_noting(path: Path, problems: list[str]) -> ScenarioConfig:
+    """Load a scenario; with any problem (its own or earlier ones) raise them all at once.
+
+    Raises:
+        ConfigError: The scenario is invalid, or ``problems`` is not empty.
+    """
+    from avoidd.config.sim import load_scenario
+
+    try:
+        scenario = load_scenario(path)
+    except ConfigError as exc:
+        raise ConfigError(problems + exc.lines) from None
+    if problems:
+        raise ConfigError(problems)
+    return scenario
 
 
 def run_px4(args: argparse.Namespace) -> int:
     """Fly one scenario against PX4 SITL; exit 0 when it passes its criteria."""
     import asyncio
 
-    from avoidd.config.sim import load_scenario
     from avoidd.sim.px4_run import Px4Run
 
-    problems = _sitl_folder_problems(
-        args.binary_dir, ("bin/px4", "etc"), "AVOIDD_PX4_SITL_DIR", "PX4 SITL"
+    folder, problems = _sitl_folder(
+        args.binary_dir, "AVOIDD_PX4_SITL_DIR", _PX4_DIR, ("bin/px4", "etc"), "PX4 SITL"
     )
     if args.cp_dist is not None and not 0.0 < args.cp_dist <= 15.0:
         # PX4 takes -1 to 15; 0 or less switches collision prevention off.
@@ -218,12 +252,10 @@ def run_px4(args: argparse.Namespace) -> int:
             f"--cp-dist {args.cp_dist}: give more than 0 and at most 15 m (PX4's CP_DIST; "
             "0 or less would switch its collision prevention off)"
         )
-    if problems:
-        raise ConfigError(problems)
-    scenario = load_scenario(args.scenario)
+    scenario = _scenario_noting(args.scenario, problems)
     run = Px4Run(
         scenario,
-        args.binary_dir,
+        folder,
         mode="push" if args.push else "planner",
         cp_dist_m=args.cp_dist,
     )

@@ -84,8 +84,8 @@ class Handover:
     """
 
     taken_over: bool = False
-    _was_setpoint_mode: bool = field(default=False, repr=False)
-    _mode_seen: bool = field(default=False, repr=False)
+    _was_setpoint_mode: bool = field(default=False, init=False, repr=False)
+    _mode_seen: bool = field(default=False, init=False, repr=False)
 
     def update(self, mode_known: bool, armed: bool, setpoint_mode: bool, link_up: bool) -> bool:
         """Take this cycle's mode into account.
