@@ -582,11 +582,12 @@ def test_inside_the_clearance_of_a_wall_flown_along_the_setpoint_leads_away_from
     assert away_min_m_s - 1e-6 <= away_m_s <= away_max_m_s + 1e-6, decision
     assert north_m_s > 1.0  # it still flies on along the wall
     assert math.hypot(north_m_s, east_m_s) <= planner.config.max_speed_m_s + 1e-9
-    # The same wall on the left: the same speed, the other way.
-    planner.memory.north_east = wall * [1.0, -1.0]
-    mirrored = planner.decide(
-        2 * S, Pose(2 * S, 0.0, 0.0, -2.0, 0.0, 2.0, 0.0), Goal(30.0, 0.0, 2.0), True
-    )
+    # The same wall on the left: the same speed, the other way (a planner of its own: the
+    # speed away grows while the vehicle stays inside).
+    mirror = _planner(unknown="free", memory_s=10.0)
+    mirror.memory.north_east = wall * [1.0, -1.0]
+    mirror.memory.t_ns = planner.memory.t_ns
+    mirrored = mirror.decide(S, pose, Goal(30.0, 0.0, 2.0), True)
     assert mirrored.velocity_ned[1] == pytest.approx(away_m_s, abs=1e-6)
 
 
