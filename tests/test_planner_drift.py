@@ -484,60 +484,99 @@ def test_a_hold_backs_away_into_ground_the_cameras_have_not_seen() -> None:
 
 
 def test_the_back_away_grows_while_the_vehicle_stays_inside_and_fades_outside() -> None:
-    planner = _planner_by_a_wall(2.0)
-    wall_m = planner.clearance_m - 0.15  # 0.10 m inside, beyond the 5 cm slack
+    wall_m = _planner_by_a_wall(2.0).clearance_m - 0.15  # 0.10 m inside, beyond the 5 cm slack
     planner = _planner_by_a_wall(wall_m)
 
     def back(t_s: float, north_m: float = 0.0) -> float:
         pose = Pose(int(t_s * S), north_m, 0.0, -2.0, 0.0, 0.0, 0.0, None)
-        return -planner.back_away_m_s(pose)[0]
+        north, east = planner.back_away_m_s(pose)
+        assert east == pytest.approx(0.0, abs=1e-9)
+        return -north
 
     assert back(1.0) == pytest.approx(0.2, abs=1e-6)  # the depth's part alone at first
-    assert back(1.0) == pytest.approx(0.2, abs=1e-6)  # one position time grows it once
     for i in range(1, 11):
         back(1.0 + 0.1 * i)
     # A second 0.10 m inside: 2 m/s per metre-second more.
-    assert back(2.0) == pytest.approx(0.2 + 2.0 * 0.10 * 1.0, abs=1e-6)
+    grown = 2.0 * 0.10 * 1.0
+    assert back(2.0) == pytest.approx(0.2 + grown, abs=1e-6)
+    # One position time grows it once, and an older one changes nothing.
+    assert back(2.0) == pytest.approx(0.2 + grown, abs=1e-6)
+    assert back(1.95) == pytest.approx(0.2 + grown, abs=1e-6)
+    assert back(2.0) == pytest.approx(0.2 + grown, abs=1e-6)
+    # A gap of 0.6 s between positions counts 0.25 s at most.
+    grown += 2.0 * 0.10 * 0.25
+    assert back(2.6) == pytest.approx(0.2 + grown, abs=1e-6)
+    # Within the 5 cm slack (0.03 m inside) the depth's part is gone, the growth stays whole.
+    assert back(2.7, north_m=-0.12) == pytest.approx(grown, abs=1e-6)
     for i in range(1, 101):
-        back(2.0 + 0.1 * i)
-    assert back(12.0) == pytest.approx(0.75)  # never beyond the back-away's most
-    # Outside the clearance nothing is sent and the growth fades (1 s time constant) ...
-    for i in range(1, 11):
-        assert back(12.0 + 0.1 * i, north_m=-0.5) == 0.0
-    # ... so that back just inside it is what is left of it.
-    faded = 0.75 * math.exp(-1.0) + 2.0 * 0.01 * 0.1  # 0.01 m inside for the last 0.1 s
-    assert back(13.1, north_m=-0.09) == pytest.approx(2.0 * 0.01 + faded, abs=1e-6)
+        back(2.7 + 0.1 * i)
+    assert back(12.7) == pytest.approx(0.75)  # never beyond the back-away's most
+    # Outside the clearance nothing is sent and the growth fades (1 s time constant), over
+    # the whole time that passed ...
+    assert back(13.0, north_m=-0.5) == 0.0
+    assert back(13.9, north_m=-0.5) == 0.0
+    # ... so that back just inside it (within the slack: no depth part) is what is left.
+    assert back(14.0, north_m=-0.12) == pytest.approx(0.75 * math.exp(-1.2), abs=1e-6)
     # A pause in positions (over a second) starts it from nothing.
     assert back(20.0) == pytest.approx(0.2, abs=1e-6)
 
 
-def _slide_along_the_wall(planner: Planner, wall_m: float) -> list[float]:
-    """Depths inside the clearance of a vehicle sliding along a wall for 8 s.
+def test_the_back_away_grown_against_one_side_never_pushes_toward_another() -> None:
+    wall_m = _planner_by_a_wall(2.0).clearance_m - 0.15  # 0.10 m inside
+    planner = _planner_by_a_wall(wall_m)
+    north_wall = planner.memory.north_east.copy()
 
-    The autopilot follows the correction sideways at 65 % after a 0.3 s lag, and its positions
-    drift 0.5 m/s toward the wall beyond what it reports (PX4 SITL along the wall's end).
+    def back(t_s: float) -> tuple[float, float]:
+        return planner.back_away_m_s(Pose(int(t_s * S), 0.0, 0.0, -2.0, 0.0, 0.0, 0.0, None))
+
+    for i in range(21):
+        back(1.0 + 0.1 * i)
+    assert back(3.0)[0] == pytest.approx(-(0.2 + 2.0 * 0.10 * 2.0), abs=1e-6)
+    # The same depth inside the clearance of a wall to the south instead: the speed north
+    # away from it is the depth's alone (the growth pointed south, at it).
+    planner.memory.north_east = north_wall * [-1.0, 1.0]
+    assert back(3.1) == pytest.approx((0.2, 0.0), abs=1e-6)
+    # Inside a corridor narrower than the clearance there is no one side: nothing is sent and
+    # the growth is dropped, so back at the north wall only the depth counts.
+    planner.memory.north_east = np.concatenate([north_wall, north_wall * [-1.0, 1.0]])
+    planner.memory.t_ns = np.full(planner.memory.north_east.shape[0], S, dtype=np.int64)
+    assert back(3.2) == (0.0, 0.0)
+    planner.memory.north_east = north_wall
+    planner.memory.t_ns = planner.memory.t_ns[: north_wall.shape[0]]
+    assert back(3.2) == pytest.approx((-0.2, 0.0), abs=1e-6)
+
+
+def _slide_along_the_wall(planner: Planner, wall_m: float) -> tuple[list[float], list[float]]:
+    """Depths inside the clearance and speeds asked away of a vehicle sliding along a wall.
+
+    For 8 s the autopilot follows the correction sideways at 65 % after a 0.3 s lag, and its
+    positions drift 0.5 m/s toward the wall beyond what it reports (PX4 SITL along the
+    wall's end).
     """
     north_m, reported_n = 0.0, 0.0
-    depths = []
+    depths, away = [], []
     for i in range(80):
         t_ns = S + i * S // 10
         pose = Pose(t_ns, north_m, 0.0, -2.0, math.pi / 2, reported_n, 1.5, (reported_n + 0.5, 1.5))
         north, _ = away_m_s(planner.back_away_m_s(pose), planner.drift_back_m_s(pose))
+        away.append(-north)
         reported_n += (0.65 * north - reported_n) * 0.1 / 0.3
         north_m += (reported_n + 0.5) * 0.1
         depths.append(planner.clearance_m - (wall_m - north_m))
-    return depths
+    return depths, away
 
 
 def test_the_growing_back_away_settles_a_partly_following_vehicle_at_the_clearance(
     monkeypatch: pytest.MonkeyPatch,
 ) -> None:
     wall_m = _planner_by_a_wall(2.0).clearance_m - 0.1
-    settled = _slide_along_the_wall(_planner_by_a_wall(wall_m), wall_m)
+    settled, away = _slide_along_the_wall(_planner_by_a_wall(wall_m), wall_m)
     # The depth alone balances the drift about 0.2 m inside (as PX4 SITL did, edge 0.83 m);
-    # with the growth the vehicle comes back to within a few cm of the clearance.
+    # with the growth the vehicle comes back to within a few cm of the clearance ...
     assert max(settled[-20:]) < 0.08, settled[-20:]
     assert max(settled) < 0.25
+    # ... and stays there asking a steady speed away, not one that drops out and back.
+    assert max(away[-30:]) - min(away[-30:]) < 0.05, away[-30:]
     monkeypatch.setattr("avoidd.planner.core._BACK_AWAY_GROWTH", 0.0)
-    depth_only = _slide_along_the_wall(_planner_by_a_wall(wall_m), wall_m)
+    depth_only, _ = _slide_along_the_wall(_planner_by_a_wall(wall_m), wall_m)
     assert min(depth_only[-20:]) > 0.15, depth_only[-20:]

@@ -254,7 +254,7 @@ class Planner:
     _scan_side: float = 1.0
     _last_decide_ns: int | None = None
     _back_since_ns: int | None = None
-    _grown_m_s: float = 0.0
+    _grown_ne_m_s: tuple[float, float] = (0.0, 0.0)
     _grown_ns: int | None = None
     _in_view: np.ndarray = field(init=False)
     _view_margin_rad: float = field(init=False)
@@ -293,7 +293,11 @@ class Planner:
         return self.config.vehicle_radius_m + self.config.margin_m
 
     def reset(self) -> None:
-        """Start over for a new goal (memory kept: the obstacles did not move)."""
+        """Start over for a new goal.
+
+        The memory is kept (the obstacles did not move), and so is the back-away's growth
+        (:meth:`_grow`: the autopilot's drift did not change either).
+        """
         self._admissible[:] = False
         self._previous_rad = None
         self._side = 0
@@ -457,45 +461,67 @@ class Planner:
         sideways setpoint only in part while its positions drift toward the wall: depth alone
         balanced PX4 SITL about 0.2 m inside its clearance for seconds on end (it flew
         60-75 % of the speed away it was asked while its positions drifted 0.5 m/s toward the
-        wall). Outside the clearance the growth fades (:data:`_BACK_AWAY_FADE_S`).
+        wall).
 
-        Calls at one position time grow it once: a hold and a move in the same cycle do not
-        count twice.
+        The growth is a velocity kept between calls (:meth:`_grow`); only its part away from
+        the side now near is sent, so what grew against one obstacle never pushes toward
+        another. This is the one place it changes: the planner calls this once per cycle, and
+        calls at one position time grow it once.
         """
         offsets, ranges_m = self.memory.near((pose.north_m, pose.east_m))
-        inside_m = (
-            self.clearance_m - _INSIDE_SLACK_M - float(np.min(ranges_m)) if offsets.size else 0.0
-        )
+        depth_m = self.clearance_m - float(np.min(ranges_m)) if offsets.size else 0.0
         toward = None
-        if inside_m > 0.0:
+        if depth_m > 0.0:
             toward = self._side_within(offsets, ranges_m, self.clearance_m)
-        grown_m_s = self._grow(pose.t_ns, inside_m if toward is not None else 0.0)
+        grown_n, grown_e = self._grow(pose.t_ns, depth_m, toward)
         if toward is None:
             return (0.0, 0.0)
-        speed = min(_BACK_AWAY_MAX_M_S, _BACK_AWAY_GAIN * inside_m + grown_m_s)
-        return (-speed * math.cos(toward), -speed * math.sin(toward))
+        away_n, away_e = -math.cos(toward), -math.sin(toward)
+        grown_m_s = max(0.0, grown_n * away_n + grown_e * away_e)
+        speed = min(
+            _BACK_AWAY_MAX_M_S,
+            _BACK_AWAY_GAIN * max(0.0, depth_m - _INSIDE_SLACK_M) + grown_m_s,
+        )
+        if speed <= 0.0:
+            return (0.0, 0.0)
+        return (speed * away_n, speed * away_e)
 
-    def _grow(self, t_ns: int, inside_m: float) -> float:
-        """The back-away's growth at position time ``t_ns``, ``inside_m`` inside the clearance.
+    def _grow(self, t_ns: int, depth_m: float, toward: float | None) -> tuple[float, float]:
+        """The back-away's growth (north, east) at position time ``t_ns``.
 
-        It integrates the depth inside over time, no further than the back-away's most, and
-        fades outside; it starts from nothing after a pause in planning.
+        More than :data:`_INSIDE_SLACK_M` inside the clearance (``depth_m``) of one side
+        (``toward``), it grows away from that side with the depth beyond that over time, each
+        step counted up to :data:`_BACK_AWAY_STEP_S`, to :data:`_BACK_AWAY_MAX_M_S` at most.
+        Within the slack it is kept as it is, so the speed away does not drop to nothing while
+        the vehicle is still inside. Outside the clearance it fades over the time that passed
+        (:data:`_BACK_AWAY_FADE_S`). Inside with no one side (a corridor narrower than the
+        clearance), or after more than a second without a position, it starts from nothing.
+        A position older than the last one changes nothing.
         """
         if self._grown_ns is not None and t_ns - self._grown_ns > _PAUSE_NS:
-            self._grown_m_s, self._grown_ns = 0.0, None
+            self._grown_ne_m_s, self._grown_ns = (0.0, 0.0), None
         if self._grown_ns is None:
             self._grown_ns = t_ns
         if t_ns <= self._grown_ns:
-            return self._grown_m_s
-        step_s = min(_BACK_AWAY_STEP_S, (t_ns - self._grown_ns) / 1e9)
+            return self._grown_ne_m_s
+        elapsed_s = (t_ns - self._grown_ns) / 1e9
         self._grown_ns = t_ns
-        if inside_m > 0.0:
-            self._grown_m_s = min(
-                _BACK_AWAY_MAX_M_S, self._grown_m_s + _BACK_AWAY_GROWTH * inside_m * step_s
+        north, east = self._grown_ne_m_s
+        if depth_m <= 0.0:
+            fade = math.exp(-elapsed_s / _BACK_AWAY_FADE_S)
+            north, east = north * fade, east * fade
+        elif toward is None:
+            north, east = 0.0, 0.0
+        elif depth_m > _INSIDE_SLACK_M:
+            added = (
+                _BACK_AWAY_GROWTH * (depth_m - _INSIDE_SLACK_M) * min(_BACK_AWAY_STEP_S, elapsed_s)
             )
-        else:
-            self._grown_m_s *= math.exp(-step_s / _BACK_AWAY_FADE_S)
-        return self._grown_m_s
+            north, east = north - added * math.cos(toward), east - added * math.sin(toward)
+            size = math.hypot(north, east)
+            if size > _BACK_AWAY_MAX_M_S:
+                north, east = north * _BACK_AWAY_MAX_M_S / size, east * _BACK_AWAY_MAX_M_S / size
+        self._grown_ne_m_s = (north, east)
+        return self._grown_ne_m_s
 
     def near_side_rad(self, pose: Pose) -> float | None:
         """The bearing of the side remembered obstacles near the vehicle are on.
