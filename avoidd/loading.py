@@ -2,10 +2,19 @@
 
 from __future__ import annotations
 
+import math
 import os
+from collections.abc import Iterable
 from pathlib import Path
 
-from avoidd.config import AppConfig, FilesSourceConfig, HeadConfig, SimSourceConfig, load_config
+from avoidd.config import (
+    AppConfig,
+    FilesSourceConfig,
+    HeadConfig,
+    ObstacleDistanceConfig,
+    SimSourceConfig,
+    load_config,
+)
 from avoidd.config.sim import load_world
 from avoidd.errors import BrokenFrame, ConfigError, SourceError, SourceExhausted
 from avoidd.mavlink.messages import sensor_orientation
@@ -13,6 +22,7 @@ from avoidd.mavlink.signing import load_key
 from avoidd.sources.files import open_files
 from avoidd.types import Mount
 from avoidd.vision.calibration import Calibration, load_calibration
+from avoidd.vision.depth import resolved_range_m
 from avoidd.vision.nearfield import min_range_m
 from avoidd.vision.preprocess import scale_rig
 
@@ -61,6 +71,7 @@ def load_all(path: Path, input_given: bool = False) -> tuple[AppConfig, dict[str
                 f"(roll {head.mount.roll_deg}); make the mount pitch equal camera_pitch_deg, "
                 "roll 0"
             )
+        problems.extend(_check_resolution(path, head, calibration))
         if isinstance(head.source, SimSourceConfig):
             problems.extend(_check_sim_source(path, head, calibration))
         if config.mavlink.distance_sensor.enabled:
@@ -113,6 +124,53 @@ def head_min_range_m(head: HeadConfig, calibration: Calibration) -> float:
     """Nearest range a head measures, from its rig, matcher range and near-field pass."""
     rig = scale_rig(calibration.rig, head.preprocess.resize_scale)
     return min_range_m(rig, head.matcher.num_disparities, head.near_field)
+
+
+def head_resolved_range_m(head: HeadConfig, calibration: Calibration) -> float:
+    """Farthest range a head resolves (see :func:`avoidd.vision.depth.resolved_range_m`)."""
+    rig = scale_rig(calibration.rig, head.preprocess.resize_scale)
+    return resolved_range_m(rig, head.disparity_error_px)
+
+
+def obstacle_range_cm(
+    config: ObstacleDistanceConfig, heads: Iterable[tuple[HeadConfig, Calibration]]
+) -> tuple[int, int]:
+    """The ``(min, max)`` OBSTACLE_DISTANCE claims: from the least capable head at each end.
+
+    The maximum is also the range a clear bin vouches for (each head's ``max_range_m``).
+
+    Args:
+        config: ``mavlink.obstacle_distance``.
+        heads: Every head with its calibration.
+    """
+    ranges = [(head_min_range_m(h, c), head_resolved_range_m(h, c)) for h, c in heads]
+    nearest_m = max((near for near, _ in ranges), default=0.0)
+    farthest_m = min((far for _, far in ranges), default=math.inf)
+    return config.range_cm(nearest_m, farthest_m)
+
+
+MIN_RESOLVED_RANGE_M = 3.0
+"""A head that resolves less far than this is no obstacle sensor (config error)."""
+_SHORT_BASELINE_M = 0.005
+
+
+def _check_resolution(path: Path, head: HeadConfig, calibration: Calibration) -> list[str]:
+    """The head resolves at least :data:`MIN_RESOLVED_RANGE_M`: its f * B is not too small."""
+    rig = scale_rig(calibration.rig, head.preprocess.resize_scale)
+    resolved = resolved_range_m(rig, head.disparity_error_px)
+    if resolved >= MIN_RESOLVED_RANGE_M:
+        return []
+    hint = (
+        f"a baseline of {rig.baseline_m:g} m is too short for stereo ranging (is it in metres?); "
+        if rig.baseline_m < _SHORT_BASELINE_M
+        else ""
+    )
+    return [
+        f"{path}: heads.{head.name}: {calibration.source} resolves only to {resolved:.2g} m "
+        f"(f*B = {rig.fx:.4g} px * {rig.baseline_m:.4g} m at a disparity error of "
+        f"{head.disparity_error_px:g} px; at least {MIN_RESOLVED_RANGE_M:g} m is needed); "
+        f"{hint}use a wider baseline, a longer focal length or less downscaling"
+    ]
 
 
 def _check_min_distance(

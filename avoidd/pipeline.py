@@ -26,7 +26,7 @@ from avoidd.types import (
     StereoFrame,
 )
 from avoidd.vision.calibration import Calibration
-from avoidd.vision.depth import depth_from_disparity
+from avoidd.vision.depth import depth_from_disparity, resolved_range_m
 from avoidd.vision.matchers import create_matcher
 from avoidd.vision.nearfield import NearField, min_range_m
 from avoidd.vision.postprocess import postprocess_disparity
@@ -163,6 +163,7 @@ class HeadPipeline:
         self._min_range_m = min_range_m(
             self.work_rig, head.matcher.num_disparities, head.near_field
         )
+        self._resolved_range_m = resolved_range_m(self.work_rig, head.disparity_error_px)
         self.sectors = head.sectors
         self._histogram = head.histogram
         self._max_range_m = max_range_m
@@ -172,6 +173,16 @@ class HeadPipeline:
     def min_range_m(self) -> float:
         """Nearest range this head measures (see :func:`avoidd.vision.nearfield.min_range_m`)."""
         return self._min_range_m
+
+    @property
+    def max_range_m(self) -> float:
+        """Range a clear bin vouches for (readings at or beyond it are clear)."""
+        return self._max_range_m
+
+    @property
+    def resolved_range_m(self) -> float:
+        """Farthest range this head resolves (see :func:`avoidd.vision.depth.resolved_range_m`)."""
+        return self._resolved_range_m
 
     def default_pose(self, frame: StereoFrame) -> FramePose:
         """The pose recorded with the frame, else the configured attitude and height."""

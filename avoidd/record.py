@@ -38,14 +38,15 @@ import cv2
 import yaml
 
 from avoidd import sources
-from avoidd.config import AppConfig, MavlinkConfig, PerceptionConfig
+from avoidd.config import AppConfig, PerceptionConfig
 from avoidd.daemon.announce import Announcer, send_statustext
 from avoidd.daemon.core import build_link
 from avoidd.daemon.head import Head, OpenSource
 from avoidd.errors import AvoiddError, ConfigError
+from avoidd.loading import obstacle_range_cm
 from avoidd.mavlink import codec as mav
 from avoidd.mavlink.link import MavLink
-from avoidd.mavlink.signing import TimestampStore, load_key
+from avoidd.mavlink.signed import keep_timestamps, sign_link
 from avoidd.mavlink.vehicle import Vehicle
 from avoidd.perception.pose import resolve_pose
 from avoidd.types import FramePose, StereoFrame
@@ -512,12 +513,18 @@ async def record(
 
     recorder.on_stop = stop_from_writer
     link = link if link is not None else build_link(config.mavlink)
-    timestamps = _enable_signing(link, config.mavlink)
+    # A signing autopilot ignores an unsigned recorder.
+    timestamps = sign_link(link.codec, config.mavlink.signing)
     announcer = Announcer(loop)
     vehicle = Vehicle(link, config.mavlink, announcer)
     pose_for = pose_resolver(vehicle, config.perception)
     stop_threads = threading.Event()
-    max_range_m = config.mavlink.obstacle_distance.max_distance_cm / 100.0
+    max_range_m = (
+        obstacle_range_cm(
+            config.mavlink.obstacle_distance, ((h, calibrations[h.name]) for h in config.heads)
+        )[1]
+        / 100.0
+    )
     heads = [
         Head(
             h,
@@ -556,6 +563,8 @@ async def record(
         asyncio.create_task(send_statustext(announcer, link, lambda: None), name="statustext"),
         asyncio.create_task(_heartbeats(link, config.mavlink.heartbeat_hz), name="heartbeat"),
     ]
+    if config.mavlink.signing is not None:
+        tasks.append(asyncio.create_task(keep_timestamps(link.codec, timestamps), name="signing"))
     started = time.monotonic()
     try:
         while not stopped.is_set():
@@ -577,27 +586,11 @@ async def record(
             task.cancel()
         await asyncio.gather(*tasks, return_exceptions=True)
         await link.close()
-        timestamps.keep(link.codec.signing_timestamp)
+        timestamps.keep(link.codec.signing_timestamp, force=True)
     logger.info(
         "recording stopped: %s; %s", reason[0] if reason else "cancelled", recorder.summary()
     )
     return 1 if recorder.failed else 0
-
-
-def _enable_signing(link: MavLink, config: MavlinkConfig) -> TimestampStore:
-    """Sign as the daemon does when ``mavlink.signing`` is configured.
-
-    A signing autopilot ignores an unsigned recorder. Returns where the signing timestamp is
-    kept.
-    """
-    signing = config.signing
-    if signing is None:
-        return TimestampStore(None)
-    key = load_key(signing.key_file, signing.key_credential)
-    allowed = {mav.message_id(name) for name in signing.allow_unsigned}
-    timestamps = TimestampStore(signing.timestamp_file)
-    link.codec.enable_signing(key, timestamps.start(), allowed.__contains__, signing.link_id)
-    return timestamps
 
 
 async def _heartbeats(link: MavLink, rate_hz: float) -> None:

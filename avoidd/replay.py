@@ -13,6 +13,7 @@ from typing import IO, Any
 
 from avoidd.config import AppConfig, FilesSourceConfig, HeadConfig, HistogramConfig
 from avoidd.errors import BrokenFrame, ConfigError, SourceExhausted
+from avoidd.loading import obstacle_range_cm
 from avoidd.mavlink.codec import Codec
 from avoidd.mavlink.messages import sectors_to_cm
 from avoidd.perception.sectors import bin_of_bearing
@@ -149,7 +150,8 @@ def replay(
         Totals of the run.
     """
     od = config.mavlink.obstacle_distance
-    pipeline = HeadPipeline(head, calibration, od.max_distance_cm / 100.0, config.perception)
+    min_cm, max_cm = obstacle_range_cm(od, [(head, calibration)])
+    pipeline = HeadPipeline(head, calibration, max_cm / 100.0, config.perception)
     temporal = SectorFilter(config.perception.temporal)
     codec = Codec(config.mavlink.fixed_system_id or 1, config.mavlink.component_id)
     config_source = head.source
@@ -158,7 +160,6 @@ def replay(
     source = open_source(
         config_source, calibration.rig, head.name, paced=False, input_path=input_path
     )
-    min_cm, max_cm = od.range_cm(pipeline.min_range_m)
     summary = ReplaySummary(source=source.description)
     totals: dict[str, list[float]] = {stage: [] for stage in (*STAGES, "encode")}
     pace = _RealTime() if realtime else None

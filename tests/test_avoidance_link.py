@@ -277,7 +277,13 @@ async def test_parameters_list_read_set_range_check_and_persist(tmp_path: Path) 
     port = free_udp_port()
     await autopilot.start(f"udpin:127.0.0.1:{port}")
     sections = {"avoidance": {"enabled": False, "params_file": str(params_file)}}
-    config = synthetic_config(tmp_path, f"udpout:127.0.0.1:{port}", sections=sections)
+    # Unsigned, so switching avoidance on needs the opt-in (tests/test_trust_link.py).
+    config = synthetic_config(
+        tmp_path,
+        f"udpout:127.0.0.1:{port}",
+        mavlink={"control": {"unsigned_may_weaken": True}},
+        sections=sections,
+    )
     daemon, task = await start(config)
     me = mav.MAV_COMP_ID_OBSTACLE_AVOIDANCE
     try:
@@ -314,8 +320,11 @@ async def test_parameters_list_read_set_range_check_and_persist(tmp_path: Path) 
     from avoidd.config import AvoidanceConfig
     from avoidd.daemon.params import ParamTable
 
+    # A saved AVD_ENABLE never switches avoidance on: the configuration must.
     table = ParamTable(AvoidanceConfig(params_file=params_file), params_file)
-    assert table.config.enabled and table.config.margin_m == 1.5
+    assert not table.config.enabled and table.config.margin_m == 1.5
+    table = ParamTable(AvoidanceConfig(enabled=True, params_file=params_file), params_file)
+    assert table.config.enabled
 
 
 async def test_goals_only_from_the_vehicle_or_a_ground_station_and_qgc_style_reads(

@@ -16,6 +16,7 @@ from avoidd.config import (
     AvoidanceConfig,
     BandConfig,
     CensusConfig,
+    ControlConfig,
     DebugServerConfig,
     DistanceSensorConfig,
     FilesSourceConfig,
@@ -418,6 +419,9 @@ mavlink:
   signing:
     #@ mavlink.signing
     key_credential: avoidd-signing
+  control:
+    #@ mavlink.control
+    ground_stations: [255]
 pipeline:
   #@ pipeline
   max_age_ms: 300
@@ -479,6 +483,7 @@ SECTION_MODELS: dict[str, type[BaseModel]] = {
     "mavlink.obstacle_distance_3d": ObstacleDistance3dConfig,
     "mavlink.streams": StreamsConfig,
     "mavlink.signing": SigningConfig,
+    "mavlink.control": ControlConfig,
     "pipeline": PipelineConfig,
     "service": ServiceConfig,
     "perception": PerceptionConfig,

@@ -12,7 +12,7 @@ import pytest
 
 from avoidd.config import PerceptionConfig, SectorsConfig
 from avoidd.errors import BrokenFrame, ConfigError
-from avoidd.loading import load_all
+from avoidd.loading import load_all, obstacle_range_cm
 from avoidd.perception.frames import camera_to_level
 from avoidd.perception.ground import free_space_evidence
 from avoidd.perception.perceive import perceive
@@ -85,6 +85,14 @@ def _write(tmp_path: Path, config: str, calibration: str) -> Path:
         (None, ("cx: 159.5", "cx: -5"), "cx -5 lies outside the image"),
         (None, ("fx: 200", "fx: 2"), "fx 2 px is not a focal length"),
         (None, ("baseline_m: 0.1", "baseline_m: .nan"), "rectified.baseline_m"),
+        (None, ("baseline_m: 0.1", "baseline_m: 1e-12"), "too short for stereo ranging"),
+        (None, ("baseline_m: 0.1", "baseline_m: 0.004"), "resolves only to 0.8 m"),
+        (None, ("baseline_m: 0.1", "baseline_m: 0.0125"), "resolves only to 2.5 m"),
+        (
+            ("fps: 15,", "fps: 15, seed: 1,"),
+            ("baseline_m: 0.1", "baseline_m: 0.01"),
+            "at least 3 m",
+        ),
     ],
 )
 def test_check_config_refuses_impossible_geometry(
@@ -128,6 +136,28 @@ def test_stereo_calibrations_refuse_non_finite_numbers(tmp_path: Path, old: str,
     with pytest.raises(ConfigError) as info:
         load_all(path)
     assert "calib.yaml" in info.value.lines[0]
+
+
+def test_check_config_says_how_far_the_rig_resolves_and_cuts_the_maximum(tmp_path: Path) -> None:
+    # f*B = 200 px * 0.06 m: at a 0.5 px error a reading at 12 m may be 50 % off.
+    path = _write(tmp_path, CONFIG, CALIBRATION.replace("baseline_m: 0.1", "baseline_m: 0.06"))
+    result = subprocess.run(
+        [sys.executable, "-m", "avoidd", "check-config", str(path)],
+        capture_output=True,
+        text=True,
+        cwd=REPO,
+        timeout=60,
+    )
+    assert result.returncode == 0, result.stderr
+    assert "resolves to 12.0 m" in result.stdout
+    assert "to 1200 cm (max_distance_cm 2000 cut to what the rig resolves)" in result.stdout
+    # A looser error setting halves it.
+    looser = CONFIG.replace("    source:", "    disparity_error_px: 1.0\n    source:")
+    path = _write(tmp_path, looser, CALIBRATION.replace("baseline_m: 0.1", "baseline_m: 0.06"))
+    config, calibrations = load_all(path)
+    assert obstacle_range_cm(
+        config.mavlink.obstacle_distance, [(config.heads[0], calibrations["front"])]
+    ) == (5, 600)
 
 
 def test_the_shipped_configs_pass_the_same_checks() -> None:
@@ -199,3 +229,30 @@ def _histogram():  # type: ignore[no-untyped-def]
     from avoidd.config import HistogramConfig
 
     return HistogramConfig()
+
+
+async def test_the_daemon_claims_clear_no_farther_than_the_rig_resolves(tmp_path: Path) -> None:
+    # A 6 cm rig at 200 px resolves to 12 m: ArduPilot is told so (max_distance), no bin says
+    # more, and the planner's clear bins see no farther.
+    from avoidd.mavlink.mock_autopilot import MockAutopilot
+    from tests.helpers import RIG_320, free_udp_port, synthetic_config, wait_for
+    from tests.helpers import start_daemon as start
+    from tests.helpers import stop_daemon as stop
+
+    autopilot = MockAutopilot(system_id=7, mode="LOITER")
+    port = free_udp_port()
+    await autopilot.start(f"udpin:127.0.0.1:{port}")
+    rig = {**RIG_320, "baseline_m": 0.06}
+    config = synthetic_config(tmp_path, f"udpout:127.0.0.1:{port}", rig=rig)
+    daemon, task = await start(config)
+    try:
+        assert await wait_for(lambda: len(autopilot.of_type("OBSTACLE_DISTANCE")) >= 10, 20)
+        messages = autopilot.of_type("OBSTACLE_DISTANCE")
+        assert {m.max_distance for m in messages} == {1200}
+        assert all(d <= 1201 or d == 65535 for m in messages for d in m.distances)
+        assert any(d == 1201 for m in messages for d in m.distances)  # clear: beyond 12 m
+        assert daemon.avoidance.planner.max_range_m == 12.0
+        assert all(head.pipeline.max_range_m == 12.0 for head in daemon.heads)
+    finally:
+        await stop(daemon, task)
+        await autopilot.stop()

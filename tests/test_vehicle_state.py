@@ -16,15 +16,7 @@ from avoidd.mavlink.clock import ClockSync
 from avoidd.mavlink.link import MavLink
 from avoidd.mavlink.mock_autopilot import _mode_fields
 from avoidd.mavlink.modes import decode_mode
-from avoidd.mavlink.signing import (
-    EPOCH_2015_S,
-    LEAD_S,
-    UNITS_PER_S,
-    TimestampStore,
-    load_key,
-    parse_key,
-    wall_timestamp,
-)
+from avoidd.mavlink.signing import load_key, parse_key
 from avoidd.mavlink.vehicle import Vehicle
 
 COPTER = mav.MAV_TYPE_QUADROTOR
@@ -250,21 +242,6 @@ def test_signing_key_from_systemd_credentials(
     monkeypatch.delenv("CREDENTIALS_DIRECTORY")
     with pytest.raises(ConfigError, match="LoadCredential"):
         load_key(None, "mavlink-key")
-
-
-def test_signing_timestamp_survives_a_restart_without_a_clock(tmp_path: Path) -> None:
-    path = tmp_path / "signing-timestamp"
-    now_s = EPOCH_2015_S + 10 * 365 * 86400  # a board whose clock is right
-    store = TimestampStore(path)
-    first = store.start(now_s)
-    assert first == wall_timestamp(now_s)
-    used = first + 7 * UNITS_PER_S  # seven seconds of signing later...
-    store.keep(used)
-    # ...it reboots without a real-time clock: the wall clock says 1970.
-    restarted = TimestampStore(path).start(0.0)
-    assert restarted > used
-    assert restarted <= used + LEAD_S * UNITS_PER_S + UNITS_PER_S
-    assert wall_timestamp(0.0) == 0
 
 
 async def test_vehicle_adopts_the_autopilot_and_ignores_others() -> None:

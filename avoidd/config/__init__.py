@@ -11,6 +11,7 @@ from avoidd.config.connection import LinkSpec, parse_connection
 from avoidd.config.debug_server import DebugServerConfig
 from avoidd.config.head import HeadConfig, MountConfig
 from avoidd.config.mavlink import (
+    ControlConfig,
     DistanceSensorConfig,
     MavlinkConfig,
     ObstacleDistance3dConfig,
@@ -57,6 +58,7 @@ __all__ = [
     "BandConfig",
     "CensusConfig",
     "ConfigPath",
+    "ControlConfig",
     "DebugServerConfig",
     "DisparityRange",
     "DistanceSensorConfig",

@@ -5,7 +5,7 @@ from __future__ import annotations
 from pathlib import Path
 from typing import Annotated, Literal
 
-from pydantic import Field
+from pydantic import Field, model_validator
 
 from avoidd.config.base import Lax, Strict
 
@@ -33,6 +33,8 @@ class AvoidanceConfig(Strict):
         vehicle_radius_m: Radius of the vehicle's footprint, propellers included.
         margin_m: Clearance kept beyond the radius (ArduPilot's ``AVOID_MARGIN`` should be no
             larger, or its own avoidance stops the vehicle first).
+        min_margin_m: The smallest margin the ``AVD_MARGIN`` parameter may set (no more than
+            ``margin_m``).
         max_speed_m_s: Horizontal speed limit.
         max_accel_m_s2: Deceleration assumed available for the speed law.
         max_yaw_rate_deg_s: Yaw rate limit.
@@ -66,6 +68,7 @@ class AvoidanceConfig(Strict):
     enabled: bool = False
     vehicle_radius_m: float = Field(0.5, gt=0.0, le=5.0)
     margin_m: float = Field(1.0, ge=0.0, le=10.0)
+    min_margin_m: float = Field(0.5, ge=0.0, le=10.0)
     max_speed_m_s: float = Field(3.0, gt=0.0, le=20.0)
     max_accel_m_s2: float = Field(2.0, gt=0.0, le=10.0)
     max_yaw_rate_deg_s: float = Field(60.0, gt=0.0, le=360.0)
@@ -81,3 +84,12 @@ class AvoidanceConfig(Strict):
     follow_mission: bool = False
     goal: GoalConfig | None = None
     params_file: Annotated[Path, Lax] | None = None
+
+    @model_validator(mode="after")
+    def _margin_floor(self) -> AvoidanceConfig:
+        if self.margin_m < self.min_margin_m:
+            raise ValueError(
+                f"margin_m {self.margin_m:g} is below min_margin_m {self.min_margin_m:g}; "
+                "raise the margin, or lower min_margin_m too if that is meant"
+            )
+        return self

@@ -57,6 +57,11 @@ class HeadConfig(Strict):
         name: Lower case, unique: it names the head in logs, STATUSTEXT and stats.
         calibration: The head's calibration file (``avoidd calibrate`` or ``import-calibration``
             writes one).
+        disparity_error_px: The disparity error to count on (pixels of the images the matcher
+            sees). It sets how far the head resolves: the range where the error is half the
+            disparity, ``f * B / (2 * disparity_error_px)`` (a 50 % range error). Nothing
+            farther is claimed: OBSTACLE_DISTANCE's maximum, and so the range a clear bin
+            vouches for, is at most that of the least resolving head.
     """
 
     name: str
@@ -69,6 +74,7 @@ class HeadConfig(Strict):
     postprocess: PostprocessConfig = PostprocessConfig()
     sectors: SectorsConfig = SectorsConfig()
     histogram: HistogramConfig = HistogramConfig()
+    disparity_error_px: float = Field(0.5, ge=0.05, le=8.0)
 
     @field_validator("name")
     @classmethod

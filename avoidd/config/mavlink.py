@@ -21,7 +21,8 @@ class ObstacleDistanceConfig(Strict):
             follows from the heads (the nearest range the least capable one measures, see
             ``avoidd check-config``); a value below that is refused, since it would claim
             ranges the rig cannot measure.
-        max_distance_cm: Readings at or beyond this are sent as clear.
+        max_distance_cm: Readings at or beyond this are sent as clear. A rig that resolves
+            less far lowers it (see ``heads[].disparity_error_px``, ``avoidd check-config``).
     """
 
     rate_hz: float = Field(15.0, ge=1.0, le=50.0)
@@ -34,11 +35,22 @@ class ObstacleDistanceConfig(Strict):
             raise ValueError("max_distance_cm must be greater than min_distance_cm")
         return self
 
-    def range_cm(self, rig_min_range_m: float) -> tuple[int, int]:
-        """The ``(min, max)`` distances to send, given the nearest range the heads measure."""
+    def range_cm(
+        self, rig_min_range_m: float, rig_max_range_m: float = math.inf
+    ) -> tuple[int, int]:
+        """The ``(min, max)`` distances to send.
+
+        Args:
+            rig_min_range_m: The nearest range every head measures.
+            rig_max_range_m: The farthest range every head resolves (the maximum is cut to
+                it: a clear bin claims nothing nearer than the maximum).
+        """
         derived = max(1, math.ceil(rig_min_range_m * 100.0 - 1e-6))
         minimum = self.min_distance_cm if self.min_distance_cm is not None else derived
-        return minimum, max(self.max_distance_cm, minimum + 1)
+        maximum = self.max_distance_cm
+        if math.isfinite(rig_max_range_m):
+            maximum = min(maximum, math.floor(rig_max_range_m * 100.0 + 1e-6))
+        return minimum, max(maximum, minimum + 1)
 
 
 def _off_or_rate(value: float) -> float:
@@ -145,6 +157,28 @@ class ObstacleDistance3dConfig(Strict):
     max_points: int = Field(16, ge=1, le=72)
 
 
+class ControlConfig(Strict):
+    """Who may command avoidd over MAVLink: goals, parameter sets, avoidance on and off.
+
+    Goals and parameter sets are taken from the vehicle's own system (the autopilot, and what
+    it forwards of its own components) and from the ground stations listed here; on a signed
+    link only with a valid signature. Anyone may read the parameters. See docs/mavlink.md
+    ("Who may command avoidd").
+
+    Attributes:
+        ground_stations: System ids of the ground stations allowed to command avoidd
+            (255: QGroundControl, Mission Planner and MAVProxy by default).
+        unsigned_may_weaken: Also take, from a message that is not signed, parameter sets
+            that make avoidd less cautious: switching avoidance on, a smaller margin or
+            radius, more speed, acceleration or yaw rate. Off (the default), such a message
+            may only make avoidd more cautious: on an unsigned link anyone who can send to
+            it can claim a ground station's id.
+    """
+
+    ground_stations: list[Annotated[int, Field(ge=1, le=255)]] = [255]  # noqa: RUF012
+    unsigned_may_weaken: bool = False
+
+
 class MavlinkConfig(Strict):
     """The MAVLink link and avoidd's identity on it.
 
@@ -160,6 +194,7 @@ class MavlinkConfig(Strict):
         link_timeout_s: The link is down when no autopilot heartbeat came for this long.
         component_id: avoidd's own component id (196 is MAV_COMP_ID_OBSTACLE_AVOIDANCE;
             goals addressed to avoidd use it).
+        control: Who may command avoidd (goals, parameters).
     """
 
     connection: str | None = None
@@ -173,6 +208,7 @@ class MavlinkConfig(Strict):
     obstacle_distance_3d: ObstacleDistance3dConfig = ObstacleDistance3dConfig()
     streams: StreamsConfig = StreamsConfig()
     signing: SigningConfig | None = None
+    control: ControlConfig = ControlConfig()
 
     @field_validator("system_id", mode="before")
     @classmethod

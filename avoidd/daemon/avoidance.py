@@ -35,7 +35,7 @@ from avoidd.config import AvoidanceConfig
 from avoidd.daemon import goals
 from avoidd.daemon.mission_follow import MissionFollower
 from avoidd.daemon.outputs import Outputs, every
-from avoidd.daemon.params import BY_NAME, PARAMS, ParamTable
+from avoidd.daemon.params import BY_NAME, PARAMS, Outcome, ParamTable
 from avoidd.mavlink import codec as mav
 from avoidd.mavlink.codec import Message
 from avoidd.mavlink.link import MavLink
@@ -414,20 +414,9 @@ class AvoidanceLoop:
             if name not in BY_NAME:
                 logger.warning("PARAM_SET %s: no such avoidd parameter", name)
                 return
-            value = float(message.param_value)
-            if self.params.set(name, value):
-                self._apply(self.params.config)
-                logger.info("avoidance: %s set to %g", name, value)
-            else:
-                param = BY_NAME[name]
-                logger.warning(
-                    "PARAM_SET %s=%g refused: outside %g..%g", name, value, param.low, param.high
-                )
-                self.announce(
-                    mav.MAV_SEVERITY_WARNING,
-                    f"avoidd: {name} must be {param.low:g}..{param.high:g}",
-                    None,
-                )
+            self._param_set(
+                name, float(message.param_value), self.vehicle.trust.may_weaken(message)
+            )
             names = [name]
         for name in names:
             index = next(i for i, p in enumerate(PARAMS) if p.name == name)
@@ -441,6 +430,27 @@ class AvoidanceLoop:
                     index,
                 )
             )
+
+    def _param_set(self, name: str, value: float, may_weaken: bool) -> None:
+        """Set one parameter, or say why not (log and STATUSTEXT, one subject)."""
+        outcome = self.params.set(name, value, may_weaken)
+        if outcome is Outcome.SET:
+            self._apply(self.params.config)
+            logger.info("avoidance: %s set to %g", name, value)
+            return
+        low, high = self.params.bounds(name)
+        if outcome is Outcome.WEAKENS:
+            why = "refused: unsigned"
+            logger.warning(
+                "PARAM_SET %s=%g refused: it makes avoidd less cautious and the message is "
+                "not signed (sign the link, or set mavlink.control.unsigned_may_weaken)",
+                name,
+                value,
+            )
+        else:
+            why = f"must be {low:g}..{high:g}"
+            logger.warning("PARAM_SET %s=%g refused: outside %g..%g", name, value, low, high)
+        self.announce(mav.MAV_SEVERITY_WARNING, f"avoidd: {name} {why}", "param refused")
 
     def _apply(self, config: AvoidanceConfig) -> None:
         self.config = config

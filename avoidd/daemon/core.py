@@ -26,9 +26,10 @@ from avoidd.daemon.outputs import Outputs
 from avoidd.daemon.stats import DaemonStats, log_every, snapshot
 from avoidd.daemon.systemd import ServiceReporter
 from avoidd.errors import AvoiddError
+from avoidd.loading import obstacle_range_cm
 from avoidd.mavlink import codec as mav
 from avoidd.mavlink.link import MavLink
-from avoidd.mavlink.signing import TimestampStore, load_key
+from avoidd.mavlink.signed import keep_timestamps, sign_link
 from avoidd.mavlink.vehicle import Vehicle
 from avoidd.perception.pose import resolve_pose
 from avoidd.sources.base import FrameSource
@@ -40,7 +41,10 @@ if TYPE_CHECKING:
 
 logger = logging.getLogger(__name__)
 
-_SIGNING_KEEP_S = 5.0
+_ACTIONS = frozenset(
+    {"SET_POSITION_TARGET_LOCAL_NED", "SET_POSITION_TARGET_GLOBAL_INT", "COMMAND_INT", "PARAM_SET"}
+)
+"""Commands that change what avoidd does (not reads)."""
 
 
 def build_link(config: MavlinkConfig) -> MavLink:
@@ -103,15 +107,7 @@ class Daemon:
         mavlink = config.mavlink
         self.link = link if link is not None else build_link(mavlink)
         self.codec = self.link.codec
-        self._timestamps = TimestampStore(None)
-        if mavlink.signing is not None:
-            signing = mavlink.signing
-            key = load_key(signing.key_file, signing.key_credential)
-            allowed = {mav.message_id(name) for name in signing.allow_unsigned}
-            self._timestamps = TimestampStore(signing.timestamp_file)
-            self.codec.enable_signing(
-                key, self._timestamps.start(), allowed.__contains__, signing.link_id
-            )
+        self._timestamps = sign_link(self.codec, mavlink.signing)
         self._announcer: Announcer | None = None
         self.vehicle = Vehicle(self.link, mavlink, self.announce)
         self._max_age_ns = config.pipeline.max_age_ms * 1_000_000
@@ -217,7 +213,13 @@ class Daemon:
             with contextlib.suppress(NotImplementedError, RuntimeError):
                 loop.add_signal_handler(signum, self.stop)
         announcer = Announcer(loop)
-        max_range_m = self.config.mavlink.obstacle_distance.max_distance_cm / 100.0
+        max_range_m = (
+            obstacle_range_cm(
+                self.config.mavlink.obstacle_distance,
+                ((h, self._calibrations[h.name]) for h in self.config.heads),
+            )[1]
+            / 100.0
+        )
         self.heads = [
             Head(
                 h,
@@ -286,10 +288,20 @@ class Daemon:
                 await asyncio.to_thread(head.join, 5.0)
             await asyncio.sleep(0.05)  # let the sender flush what is queued
             await self.link.close()
-            self._timestamps.keep(self.codec.signing_timestamp)
+            self._timestamps.keep(self.codec.signing_timestamp, force=True)
             cv2.setNumThreads(previous_threads)
         logger.info("avoidd stopped; MAVLink %s", self.link.counters())
         return code
+
+    def _command(self, message: mav.Message) -> None:
+        """A command for avoidd: its sender's signing timestamp is stored before it is acted on.
+
+        So the same signed frame, sent again after a crash and restart, is a replay.
+        """
+        if self.codec.signature_check is not None and message.get_type() in _ACTIONS:
+            self._timestamps.keep(self.codec.signing_timestamp, force=True)
+        assert self.avoidance is not None
+        self.avoidance.handle_command(message)
 
     def _loops(self, announcer: Announcer) -> dict[str, Coroutine[Any, Any, None]]:
         """The long-running loops besides the heads' compute tasks, by task name."""
@@ -309,9 +321,9 @@ class Daemon:
             self.vehicle,
             self.link,
             self.announce,
-            self.config.mavlink.obstacle_distance.max_distance_cm / 100.0,
+            self.outputs.max_cm / 100.0,
         )
-        self.vehicle.on_command = self.avoidance.handle_command
+        self.vehicle.on_command = self._command
         loops["avoidance"] = self.avoidance.run()
         loops["heartbeat"] = self._heartbeat_loop()
         loops["statustext"] = send_statustext(announcer, self.link, self._check_staleness)
@@ -321,7 +333,7 @@ class Daemon:
         )
         loops["vehicle"] = self.vehicle.run()
         if self.config.mavlink.signing is not None:
-            loops["signing"] = self._signing_loop()
+            loops["signing"] = keep_timestamps(self.codec, self._timestamps)
         notifier = Notifier.from_environment()  # under systemd (Type=notify)
         if notifier is not None:
             reporter = ServiceReporter(
@@ -394,8 +406,3 @@ class Daemon:
             else:
                 logger.warning("head '%s': data fresh again", name)
                 self.announce(mav.MAV_SEVERITY_NOTICE, f"avoidd: {name} recovered", f"fresh {name}")
-
-    async def _signing_loop(self) -> None:
-        while True:
-            await asyncio.sleep(_SIGNING_KEEP_S)
-            self._timestamps.keep(self.codec.signing_timestamp)

@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import asyncio
 import logging
+import math
 import time
 from collections.abc import Callable, Coroutine, Sequence
 from typing import Any
@@ -99,8 +100,9 @@ class Outputs:
         self._blind_log = RepeatLimiter(logger)
         self._nothing_known_since_ns: int | None = None
         nearest_m = max((head.pipeline.min_range_m for head in heads), default=0.0)
-        self.min_cm, self.max_cm = config.obstacle_distance.range_cm(nearest_m)
-        """The range the messages claim: from what the least capable head can measure."""
+        farthest_m = min((head.pipeline.resolved_range_m for head in heads), default=math.inf)
+        self.min_cm, self.max_cm = config.obstacle_distance.range_cm(nearest_m, farthest_m)
+        """The range the messages claim: what the least capable head measures and resolves."""
 
     def current_scan(self, now_ns: int) -> SectorScan | None:
         """The heads' fresh scans merged (see :func:`current_scan`)."""

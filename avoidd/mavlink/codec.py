@@ -17,7 +17,7 @@ os.environ["MAVLINK20"] = "1"
 
 from pymavlink.dialects.v20 import ardupilotmega as dialect
 
-from avoidd.mavlink.signing import SIGNING_KEY_BYTES, wall_timestamp
+from avoidd.mavlink.signing import SIGNING_KEY_BYTES, SignatureCheck, Stream, wall_timestamp
 
 
 class _PacketNotes(logging.Filter):
@@ -130,6 +130,8 @@ class Codec:
         self._mav.robust_parsing = True
         self.parse_errors = 0
         self.signature_rejects = 0
+        self.signature_check: SignatureCheck | None = None
+        """The check of incoming signatures, once signing is enabled."""
 
     @property
     def system_id(self) -> int:
@@ -153,6 +155,7 @@ class Codec:
         timestamp_10us: int,
         allow_unsigned: Callable[[int], bool],
         link_id: int = 0,
+        streams: dict[Stream, int] | None = None,
     ) -> None:
         """Sign every packed message and reject incoming ones without a valid signature.
 
@@ -161,6 +164,9 @@ class Codec:
             timestamp_10us: Starting signing timestamp (10 us units since 2015-01-01 UTC).
             allow_unsigned: Given a message id, whether to accept it unsigned or badly signed.
             link_id: The link id carried in the signature.
+            streams: The newest timestamp accepted per signed sender, shared with whoever
+                keeps it across restarts (:class:`~avoidd.mavlink.signing.TimestampStore`);
+                a new record when None.
         """
         if len(key) != SIGNING_KEY_BYTES:
             raise ValueError(f"a MAVLink signing key has {SIGNING_KEY_BYTES} bytes, not {len(key)}")
@@ -170,6 +176,13 @@ class Codec:
         signing.link_id = link_id
         signing.sign_outgoing = True
         signing.allow_unsigned_callback = lambda _mav, msg_id: allow_unsigned(msg_id)
+        self.signature_check = SignatureCheck(key, signing, {} if streams is None else streams)
+        self._mav.check_signature = self.signature_check
+
+    @property
+    def signing_state(self) -> Any:
+        """The signing state of the link, pymavlink's (key, allow-list, timestamp)."""
+        return self._mav.signing
 
     @property
     def signing_timestamp(self) -> int:
@@ -319,27 +332,29 @@ class Codec:
 
     def parser(self) -> Parser:
         """A decoder of its own for one more sender, checking signatures as this codec does."""
-        return Parser(self._mav.signing)
+        return Parser(self)
 
 
 class Parser:
     """Decodes the bytes of one sender.
 
-    Its partial frame and its signed streams' timestamps are its own, so garbage from one
-    sender cannot swallow another's frames (as it does in a shared parser when it starts like
-    a MAVLink 2 frame), nor push another's signing timestamps forward.
+    Its partial frame is its own, so garbage from one sender cannot swallow another's frames
+    (as it does in a shared parser when it starts like a MAVLink 2 frame). Signatures are
+    checked by the link's one :class:`~avoidd.mavlink.signing.SignatureCheck`, whose record of
+    each signed sender's newest timestamp is shared by every parser: a frame captured from one
+    address and sent again from another is still a replay.
 
     Args:
-        signing: The codec's signing state: its key and allow-list are used as they are when
-            each chunk is decoded, and its timestamp follows the ones accepted here.
+        codec: The link's codec: its key, allow-list and signature check are used as they are
+            when each chunk is decoded.
 
     Attributes:
         parse_errors: Bad chunks or frames.
         signature_rejects: Messages refused for a missing or wrong signature.
     """
 
-    def __init__(self, signing: Any) -> None:
-        self._shared = signing
+    def __init__(self, codec: Codec) -> None:
+        self._codec = codec
         self._mav = dialect.MAVLink(None)
         self._mav.robust_parsing = True
         self.parse_errors = 0
@@ -347,15 +362,13 @@ class Parser:
 
     def decode(self, data: bytes) -> list[Message]:
         """Decode every complete message in ``data``, as :meth:`Codec.decode` does."""
-        shared, own = self._shared, self._mav.signing
-        signed = shared.secret_key is not None
-        if signed:
-            own.secret_key = shared.secret_key
-            own.allow_unsigned_callback = shared.allow_unsigned_callback
-            own.timestamp = max(own.timestamp, shared.timestamp)
+        shared, own = self._codec.signing_state, self._mav.signing
+        own.secret_key = shared.secret_key
+        own.allow_unsigned_callback = shared.allow_unsigned_callback
+        check = self._codec.signature_check
+        if check is not None:
+            self._mav.check_signature = check
         messages, errors, rejects = _decode(self._mav, data)
-        if signed:
-            shared.timestamp = max(shared.timestamp, own.timestamp)
         self.parse_errors += errors
         self.signature_rejects += rejects
         return messages

@@ -24,6 +24,7 @@ from avoidd.mavlink.geo import GlobalPoint, valid_lat_lon
 from avoidd.mavlink.link import MavLink
 from avoidd.mavlink.modes import FlightMode, decode_mode
 from avoidd.mavlink.track_history import TrackHistory
+from avoidd.mavlink.trust import Trust
 
 logger = logging.getLogger(__name__)
 
@@ -191,7 +192,11 @@ class Vehicle:
         self.on_autopilot: Callable[[mav.Message, int], None] | None = None
         """Also receives every message from the autopilot (mission protocol answers)."""
         self.ground_stations: set[int] = set()
-        """Systems whose HEARTBEAT says MAV_TYPE_GCS (trusted with goals and parameters)."""
+        """Systems whose HEARTBEAT says MAV_TYPE_GCS (heard, not thereby trusted)."""
+        self.refused_commands: Counter[str] = Counter()
+        """Commands addressed to avoidd and not taken, by why: ``sender`` (not the vehicle's
+        system nor a configured ground station), ``unsigned`` (no valid signature on a
+        signed link)."""
         link.codec.system_id = self.system_id or DEFAULT_SYSTEM_ID
         link.subscribe(self.handle)
 
@@ -210,11 +215,11 @@ class Vehicle:
         if kind == "HEARTBEAT" and message.type == mav.MAV_TYPE_GCS:
             self.ground_stations.add(source)
         if kind in ADDRESSED_TO_US and self._addressed_to_us(message):
-            # Goals and commands for avoidd itself: only from the vehicle's own system or a
-            # system that announced itself as a ground station.
-            trusted = source == self.system_id or source in self.ground_stations
-            if not trusted:
+            # Goals, commands and parameters for avoidd itself: see avoidd.mavlink.trust.
+            refusal = self.trust.refusal(message, self.system_id)
+            if refusal is not None:
                 self.ignored[source] += 1
+                self.refused_commands[refusal] += 1
             elif self.on_command is not None:
                 self.on_command(message)
             return
@@ -234,6 +239,11 @@ class Vehicle:
             handler(message, received_ns)
         if self.on_autopilot is not None:
             self.on_autopilot(message, received_ns)
+
+    @property
+    def trust(self) -> Trust:
+        """Who may command avoidd on this link (:mod:`avoidd.mavlink.trust`)."""
+        return Trust(self._config.control, self._link.codec.signature_check is not None)
 
     def _other_autopilot(self, message: mav.Message, source: int) -> bool:
         """An autopilot of another system: follow it if ours went silent and the id is learned.

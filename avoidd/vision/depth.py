@@ -8,6 +8,19 @@ import numpy.typing as npt
 from avoidd.types import FloatArray, RectifiedRig
 
 
+def resolved_range_m(rig: RectifiedRig, disparity_error_px: float) -> float:
+    """How far a rig resolves: the range at which ``disparity_error_px`` is half the disparity.
+
+    There a reading may be off by half its range (``dZ / Z = Z * error / (f * B)``); beyond
+    it a surface cannot be told from open space, so nothing beyond is claimed clear.
+
+    Args:
+        rig: The rig of the images the matcher sees.
+        disparity_error_px: The matcher's disparity error to count on.
+    """
+    return rig.fx * rig.baseline_m / (2.0 * disparity_error_px)
+
+
 def depth_from_disparity(disparity_px: FloatArray, rig: RectifiedRig) -> FloatArray:
     """Convert a disparity map to depth along the optical axis.
 
