@@ -221,3 +221,24 @@ def wrap_deg(angle_deg: float) -> float:
     if wrapped <= 0.0:
         wrapped += 360.0
     return wrapped - 180.0
+
+
+@dataclass(frozen=True)
+class LocalPosition:
+    """LOCAL_POSITION_NED, on avoidd's clock."""
+
+    t_ns: int
+    north_m: float
+    east_m: float
+    down_m: float
+    vn_m_s: float
+    ve_m_s: float
+    vd_m_s: float
+
+
+@dataclass(frozen=True)
+class Rangefinder:
+    """The latest downward DISTANCE_SENSOR reading, on avoidd's clock."""
+
+    t_ns: int
+    distance_m: float

@@ -25,6 +25,7 @@ from avoidd.mavlink.link import MavLink
 from avoidd.mavlink.modes import FlightMode, decode_mode
 from avoidd.mavlink.track_history import TrackHistory
 from avoidd.mavlink.trust import Trust
+from avoidd.types import LocalPosition, Rangefinder
 
 logger = logging.getLogger(__name__)
 
@@ -53,27 +54,6 @@ class Announce(Protocol):
 
     def __call__(self, severity: int, text: str, key: str | None = None) -> None:
         """Report one event."""
-
-
-@dataclass(frozen=True)
-class LocalPosition:
-    """LOCAL_POSITION_NED, on avoidd's clock."""
-
-    t_ns: int
-    north_m: float
-    east_m: float
-    down_m: float
-    vn_m_s: float
-    ve_m_s: float
-    vd_m_s: float
-
-
-@dataclass(frozen=True)
-class Rangefinder:
-    """The latest downward DISTANCE_SENSOR reading, on avoidd's clock."""
-
-    t_ns: int
-    distance_m: float
 
 
 @dataclass

@@ -6,9 +6,8 @@ import math
 
 from avoidd.config import PerceptionConfig
 from avoidd.mavlink.attitude import Attitude
-from avoidd.mavlink.vehicle import LocalPosition, Rangefinder
 from avoidd.perception.ground import height_from_rangefinder
-from avoidd.types import FramePose
+from avoidd.types import FramePose, LocalPosition, Rangefinder
 
 
 def resolve_pose(
