@@ -160,7 +160,7 @@ def test_a_goal_given_before_the_first_mode_is_heard_still_prestreams() -> None:
     loop = AvoidanceLoop(config, None, vehicle, None, lambda *a: None, 20.0)  # type: ignore[arg-type]
     loop.set_goal(Goal(10.0, 0.0, 2.0, "GCS goal"))
     vehicle.mode = SimpleNamespace(armed=True, guided=False, autopilot="PX4", failsafe=False)
-    assert not loop.facts(fresh=True).taken_over
+    assert not loop.cycle.facts(loop.autopilot_state(), goal=True, fresh=True).taken_over
     # Without a goal given after the start, the rule holds.
     started_with_goal = AvoidanceLoop(
         config.model_copy(update={"goal": GoalConfig(north_m=10.0, east_m=0.0, altitude_m=2.0)}),
@@ -170,7 +170,8 @@ def test_a_goal_given_before_the_first_mode_is_heard_still_prestreams() -> None:
         lambda *a: None,
         20.0,
     )
-    assert started_with_goal.facts(fresh=True).taken_over
+    state = started_with_goal.autopilot_state()
+    assert started_with_goal.cycle.facts(state, goal=True, fresh=True).taken_over
 
 
 async def test_stale_perception_is_an_explicit_zero_velocity_hold(tmp_path: Path) -> None:

@@ -1,8 +1,10 @@
 """The daemon's setpoint loop: the planner's velocity to the autopilot, only when it may fly.
 
-Each cycle (``avoidance.setpoint_rate_hz``) takes the facts the link knows (link up, armed,
-mode, autopilot) and whether perception is fresh, applies the gate
-(:func:`avoidd.planner.gating.gate`) and sends at most one ``SET_POSITION_TARGET_LOCAL_NED``
+Each cycle (``avoidance.setpoint_rate_hz``) gathers what the link and perception know (link
+up, armed, mode, autopilot, the fresh merged scan, the position and yaw) and hands it to the
+planning cycle (:mod:`avoidd.planner.cycle`, the one every simulator runs too), which applies
+the gate (:func:`avoidd.planner.gating.gate`); the loop sends at most one
+``SET_POSITION_TARGET_LOCAL_NED``
 (``MAV_FRAME_LOCAL_NED``, velocity and yaw rate, type mask ``0x05C7``) to the autopilot:
 
 - nothing while the pilot or the autopilot flies (mode without setpoints, disarmed, link down,
@@ -42,9 +44,10 @@ from avoidd.mavlink.link import MavLink
 from avoidd.mavlink.mission import MissionClient
 from avoidd.mavlink.modes import ARDUPILOT, PX4
 from avoidd.mavlink.vehicle import Vehicle
-from avoidd.planner.core import Decision, Goal, Planner, Pose
-from avoidd.planner.gating import Facts, Gate, Handover, gate
-from avoidd.planner.track import track_velocity_ne
+from avoidd.planner.core import Decision, Goal, Pose
+from avoidd.planner.cycle import REASONS as _REASONS
+from avoidd.planner.cycle import AutopilotState, CycleInput, PlanningCycle
+from avoidd.planner.gating import Gate
 
 logger = logging.getLogger(__name__)
 
@@ -52,22 +55,11 @@ VELOCITY_YAW_RATE_MASK = 0x05C7
 """SET_POSITION_TARGET type_mask: use velocity and yaw rate; ignore position, acceleration
 and yaw (bits 0-2, 6-8 and 10 set)."""
 
-_SWITCH_OFF_HOLD_NS = 1_000_000_000
 _HISTORY = 64
 """State changes kept in :attr:`AvoidanceLoop.history`."""
 _MISSION_MESSAGES = frozenset(
     {"MISSION_COUNT", "MISSION_ITEM_INT", "MISSION_ACK", "MISSION_CURRENT"}
 )
-
-_REASONS = {
-    "link": "link down",
-    "armed": "disarmed",
-    "goal": "no goal",
-    "mode": "mode does not take setpoints",
-    "enabled": "avoidance off",
-    "taken_over": "pilot flies; waiting for a new goal",
-    "failsafe": "autopilot failsafe; waiting for the pilot to pick a mode",
-}
 
 
 class AvoidanceLoop:
@@ -98,7 +90,8 @@ class AvoidanceLoop:
         self.vehicle = vehicle
         self.link = link
         self.announce = announce
-        self.planner = Planner(config, max_range_m)
+        self.cycle = PlanningCycle(config, max_range_m)
+        self.planner = self.cycle.planner
         goal = config.goal
         self.goal = Goal(goal.north_m, goal.east_m, goal.altitude_m) if goal else None
         self.goal_source = "config" if goal else "none"
@@ -117,94 +110,53 @@ class AvoidanceLoop:
         self.last_decision: Decision | None = None
         self.last_pose: Pose | None = None
         """The vehicle's state the last decision was made with (None: none known)."""
-        self._switched_off_ns = -(10**18)
-        self.handover = Handover()
+        self.handover = self.cycle.handover
         """Whether the pilot has taken the vehicle since the goal was set (no prestream)."""
         self.sent = 0
         self.last_sent_ns = 0
         """``time.monotonic_ns()`` when the last setpoint was sent (0: none yet)."""
 
-    def facts(self, fresh: bool) -> Facts:
-        """What the link and perception say this cycle."""
+    def autopilot_state(self) -> AutopilotState:
+        """What the link says of the autopilot now."""
         mode = self.vehicle.mode
-        armed = mode is not None and mode.armed
-        setpoint_mode = mode is not None and mode.guided
-        # Started (or restarted) while the vehicle flies in another mode, someone else flies
-        # it: PX4 returns to OFFBOARD by itself when setpoints come back after its
-        # offboard-loss failsafe, so a prestream then would take control (seen).
-        taken_over = self.handover.update(
-            mode is not None, armed, setpoint_mode, self.vehicle.link_up
-        )
-        return Facts(
-            enabled=self.config.enabled,
+        return AutopilotState(
             link_up=self.vehicle.link_up,
-            armed=armed,
-            setpoint_mode=setpoint_mode,
+            mode_known=mode is not None,
+            armed=mode is not None and mode.armed,
+            setpoint_mode=mode is not None and mode.guided,
             px4=mode is not None and mode.autopilot == PX4,
-            goal=self.goal is not None,
-            fresh=fresh,
-            prestream=self.config.px4_prestream,
-            taken_over=taken_over,
-            autopilot_failsafe=mode is not None and mode.failsafe,
+            failsafe=mode is not None and mode.failsafe,
         )
 
-    def _pose(self, t_ns: int, now_ns: int) -> Pose | None:
-        """The vehicle's state at ``t_ns`` (None without a recent local position).
-
-        Yaw comes from the attitude history; the position is carried from the latest
-        LOCAL_POSITION_NED to ``t_ns`` with its velocity.
-        """
-        position = self.vehicle.fresh_position(now_ns)
-        attitude = self.vehicle.attitude_at(t_ns)
-        if position is None or attitude is None:
-            return None
-        dt_s = (t_ns - position.t_ns) / 1e9
-        return Pose(
-            t_ns,
-            position.north_m + position.vn_m_s * dt_s,
-            position.east_m + position.ve_m_s * dt_s,
-            position.down_m,
-            attitude.yaw_rad,
-            position.vn_m_s,
-            position.ve_m_s,
-            track_velocity_ne(self.vehicle.positions.reports),
+    def inputs(self, now_ns: int) -> CycleInput:
+        """What the link and perception know now, for the planning cycle."""
+        vehicle = self.vehicle
+        scan = self.outputs.current_scan(now_ns)
+        yaw_now = vehicle.attitude_at(now_ns)
+        yaw_then = vehicle.attitude_at(scan.t_capture_ns) if scan is not None else None
+        return CycleInput(
+            now_ns,
+            self.autopilot_state(),
+            scan,
+            vehicle.fresh_position(now_ns),
+            None if yaw_now is None else yaw_now.yaw_rad,
+            None if yaw_then is None else yaw_then.yaw_rad,
+            tuple(vehicle.positions.reports),
+            self.goal,
         )
 
     def step(self, now_ns: int) -> Message | None:
         """One cycle: the setpoint to send now, or None."""
-        if not self.config.enabled:
-            was_flying = self.state not in _REASONS.values() and self.state != "starting"
-            if was_flying:
-                self._switched_off_ns = now_ns
-            self._transition(_REASONS["enabled"])
-            # Switched off in flight: hold for a second (silence leaves ArduPilot flying the
-            # last velocity for 3 s), then send nothing.
-            if now_ns - self._switched_off_ns < _SWITCH_OFF_HOLD_NS and self._in_setpoint_mode():
-                return self._setpoint(now_ns, self.planner.hold("avoidance off"))
+        if self.config.enabled:
+            self._follow_mission(now_ns)
+        result = self.cycle.step(self.inputs(now_ns))
+        self.last_pose = result.pose
+        self._transition(result.state)
+        decision = result.decision
+        if decision is None:
             return None
-        self._follow_mission(now_ns)
-        scan = self.outputs.current_scan(now_ns)
-        if scan is not None:
-            at_capture = self._pose(scan.t_capture_ns, now_ns)
-            if at_capture is not None:
-                self.planner.observe_scan(scan.distance_m, scan.t_capture_ns, at_capture)
-        pose = self._pose(now_ns, now_ns)
-        self.last_pose = pose
-        facts = self.facts(fresh=scan is not None and pose is not None)
-        verdict = gate(facts)
-        if verdict is Gate.SILENT:
-            self._transition(self._silent_reason(facts))
-            return None
-        assert self.goal is not None  # the gate is silent without one
-        if verdict is Gate.PLAN and pose is not None:
-            decision = self.planner.decide(now_ns, pose, self.goal, fresh=True)
-        else:
-            why = "prestream" if verdict is Gate.PRESTREAM else "stale"
-            if verdict is Gate.HOLD and pose is None:
-                why = "no position"
-            decision = self.planner.hold(why, pose=pose if verdict is Gate.HOLD else None)
-        self.last_decision = decision
-        self._transition(decision.state)
+        if result.verdict is not Gate.SILENT and self.config.enabled:
+            self.last_decision = decision
         if decision.state == "arrived" and self.goal_source == "mission" and not self._mission_done:
             assert self.mission is not None
             self.mission.advance()
@@ -282,21 +234,6 @@ class AvoidanceLoop:
                 f"<={decision.speed_limit_m_s:.1f} m/s{free}"
             )
         return f"avoidance holds ({decision.state}): {where}"
-
-    def _in_setpoint_mode(self) -> bool:
-        mode = self.vehicle.mode
-        return bool(self.vehicle.link_up and mode is not None and mode.armed and mode.guided)
-
-    def _silent_reason(self, facts: Facts) -> str:
-        for name in ("enabled", "link", "armed", "goal"):
-            value = facts.link_up if name == "link" else getattr(facts, name)
-            if not value:
-                return _REASONS[name]
-        if facts.taken_over and facts.px4:
-            return _REASONS["taken_over"]
-        if facts.autopilot_failsafe and facts.px4 and facts.prestream:
-            return _REASONS["failsafe"]
-        return _REASONS["mode"]
 
     def _setpoint(self, now_ns: int, decision: Decision) -> Message:
         vn, ve, vd = decision.velocity_ned
@@ -455,7 +392,7 @@ class AvoidanceLoop:
     def _apply(self, config: AvoidanceConfig) -> None:
         self.config = config
         self.vehicle.wants_origin = config.enabled
-        self.planner.reconfigure(config)
+        self.cycle.reconfigure(config)
 
     def set_goal(self, goal: Goal) -> None:
         """Fly to a new goal from now on (the obstacle memory is kept)."""
@@ -463,8 +400,7 @@ class AvoidanceLoop:
         # A goal given after avoidd started supersedes the rule about the mode it found at
         # start: without this, a goal that arrives before the first heartbeat is decoded
         # would be followed by "armed in another mode at start" and no prestream (seen).
-        self.handover.new_goal()
-        self.planner.reset()
+        self.cycle.new_goal()
         logger.info(
             "avoidance: new %s: %.1f m north, %.1f m east, %.1f m up",
             goal.label,

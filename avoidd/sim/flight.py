@@ -93,12 +93,15 @@ class SimAutopilot:
         mode: Current flight mode.
         armed: Whether the motors run.
         avoid_margin_m: ArduPilot's ``AVOID_MARGIN`` (0: simple avoidance off).
+        failsafe: PX4's offboard-loss fallback is in effect (its HEARTBEAT says CRITICAL
+            until the pilot picks a mode).
     """
 
     flavour: str = "ardupilot"
     mode: str = "GUIDED"
     armed: bool = True
     avoid_margin_m: float = 0.0
+    failsafe: bool = False
     _setpoint: tuple[np.ndarray, float] | None = None
     _setpoint_ns: int = -(10**18)
     _setpoint_times: deque[int] = field(default_factory=lambda: deque(maxlen=64))
@@ -118,6 +121,7 @@ class SimAutopilot:
         if self.flavour == "px4" and mode == "OFFBOARD" and not self._streaming(now_ns):
             return False
         self.mode = mode
+        self.failsafe = False
         self.mode_changes.append((now_ns, mode))
         return True
 
@@ -192,6 +196,7 @@ class SimAutopilot:
         lost = now_ns - self._setpoint_ns > OFFBOARD_LOSS_NS
         if self.flavour == "px4" and self.mode == "OFFBOARD" and lost:
             self.set_mode(_HOLD_MODE["px4"], now_ns)  # failsafe: hold in Position mode
+            self.failsafe = True
             return hold
         if not self.takes_setpoints or self._setpoint is None:
             return hold

@@ -22,14 +22,14 @@ from avoidd.config.sim import ScenarioConfig
 from avoidd.mavlink.messages import sectors_to_cm
 from avoidd.mavlink.track_history import TrackHistory
 from avoidd.perception.sectors import covered_bins
-from avoidd.planner.core import Decision, Goal, Planner, Pose
-from avoidd.planner.gating import Facts, Gate, Handover, gate
-from avoidd.planner.track import track_velocity_ne
+from avoidd.planner.core import Decision, Goal
+from avoidd.planner.cycle import AutopilotState, CycleInput, PlanningCycle
+from avoidd.planner.gating import Gate
 from avoidd.sim.flight import SimAutopilot
 from avoidd.sim.perception import StereoPerception
 from avoidd.sim.vehicle import Multirotor, VehicleState
 from avoidd.sim.world import World
-from avoidd.types import Mount, RectifiedRig, SectorScan
+from avoidd.types import LocalPosition, Mount, RectifiedRig, SectorScan
 
 STEP_S = 0.01
 LATENCY_S = 0.1
@@ -136,9 +136,9 @@ class LockstepRun:
         self.rig = RIGS[scenario.resolution]
         self.mount = Mount()
         self.covered = covered_bins(self.rig, self.mount)
-        self.planner = Planner(avoidance, MAX_RANGE_M)
-        self.handover = Handover()
-        self.handover.new_goal()  # the goal is given before the first cycle
+        self.cycle = PlanningCycle(avoidance, MAX_RANGE_M)
+        self.planner = self.cycle.planner
+        self.cycle.new_goal()  # the goal is given before the first cycle
         self.autopilot = SimAutopilot(
             flavour=scenario.autopilot,
             mode="GUIDED" if scenario.autopilot == "ardupilot" else "POSCTL",
@@ -158,9 +158,13 @@ class LockstepRun:
         self.perceive = perceive or self._oracle
         self.camera_on = True
         self.rows: list[Row] = []
-        self._pending: list[tuple[int, SectorScan, Pose]] = []
-        self._latest: tuple[SectorScan, Pose] | None = None
+        self._pending: list[tuple[int, SectorScan, float]] = []
+        self._latest: tuple[SectorScan, float] | None = None
+        """The newest scan avoidd has, with the yaw at its capture."""
         self._track = TrackHistory()
+        self.inputs: list[CycleInput] = []
+        """Every planning cycle's input, when ``record_inputs``."""
+        self.record_inputs = False
 
     # --- perception ------------------------------------------------------------------------
 
@@ -171,13 +175,13 @@ class LockstepRun:
         )
         return SectorScan(t_ns, distance)
 
-    def _pose(self, t_ns: int) -> Pose:
+    def _position(self, t_ns: int) -> LocalPosition:
+        """The vehicle's position report now (also kept for the track velocity)."""
         state = self.vehicle.state
         north, east, down = (float(v) for v in state.position_m)
         vn, ve = float(state.velocity_m_s[0]), float(state.velocity_m_s[1])
         self._track.add(t_ns, north, east, vn, ve)
-        track = track_velocity_ne(self._track.reports)
-        return Pose(t_ns, north, east, down, state.yaw_rad, vn, ve, track)
+        return LocalPosition(t_ns, north, east, down, vn, ve, float(state.velocity_m_s[2]))
 
     def fresh_scan(self, now_ns: int) -> SectorScan | None:
         """The newest scan avoidd has, if it is younger than the age limit."""
@@ -222,11 +226,11 @@ class LockstepRun:
             if step % frame_every == 0 and self.camera_on:
                 scan = self.perceive(state, now_ns)
                 available = now_ns + round(LATENCY_S * 1e9)
-                self._pending.append((available, scan, self._pose(now_ns)))
+                self._position(now_ns)
+                self._pending.append((available, scan, state.yaw_rad))
             while self._pending and self._pending[0][0] <= now_ns:
-                _, scan, pose_then = self._pending.pop(0)
-                self._latest = (scan, pose_then)
-                self.planner.observe_scan(scan.distance_m, scan.t_capture_ns, pose_then)
+                _, scan, yaw_then = self._pending.pop(0)
+                self._latest = (scan, yaw_then)
             fresh = self.fresh_scan(now_ns)
             if fresh is None and was_fresh:
                 stale_since_ns = now_ns  # perception just went stale
@@ -288,8 +292,7 @@ class LockstepRun:
         elif action.action == "goal":
             g = action.goal
             self.goal = Goal(g.north_m, g.east_m, g.altitude_m)
-            self.handover.new_goal()
-            self.planner.reset()
+            self.cycle.new_goal()
         elif action.action == "camera_unplug":
             self.camera_on = False
         elif action.action == "camera_replug":
@@ -308,32 +311,34 @@ class LockstepRun:
     def _plan(
         self, now_ns: int, fresh: SectorScan | None
     ) -> tuple[Gate, Decision, list[float] | None]:
-        armed, setpoint_mode = self.autopilot.armed, self.autopilot.takes_setpoints
-        facts = Facts(
-            enabled=True,
-            link_up=True,
-            armed=armed,
-            setpoint_mode=setpoint_mode,
-            px4=self.autopilot.flavour == "px4",
-            goal=self.goal is not None,
-            fresh=fresh is not None,
-            prestream=self.scenario.avoidance.px4_prestream,
-            taken_over=self.handover.update(True, armed, setpoint_mode, link_up=True),
+        """One planning cycle (the daemon's own, :mod:`avoidd.planner.cycle`)."""
+        autopilot = self.autopilot
+        cycle = CycleInput(
+            now_ns,
+            AutopilotState(
+                link_up=True,
+                mode_known=True,
+                armed=autopilot.armed,
+                setpoint_mode=autopilot.takes_setpoints,
+                px4=autopilot.flavour == "px4",
+                failsafe=autopilot.failsafe,
+            ),
+            fresh,
+            self._position(now_ns),
+            self.vehicle.state.yaw_rad,
+            None if fresh is None or self._latest is None else self._latest[1],
+            tuple(self._track.reports),
+            self.goal,
         )
-        verdict = gate(facts)
-        pose = self._pose(now_ns)
-        if verdict is Gate.SILENT or self.goal is None:
-            return verdict, Decision((0.0, 0.0, 0.0), 0.0, "silent"), None
-        if verdict in (Gate.PRESTREAM, Gate.HOLD):
-            if verdict is Gate.HOLD:
-                decision = self.planner.hold("stale", pose=pose)  # as the daemon holds
-            else:
-                decision = self.planner.hold("prestream")
-        else:
-            decision = self.planner.decide(now_ns, pose, self.goal, fresh=True)
+        if self.record_inputs:
+            self.inputs.append(cycle)
+        result = self.cycle.step(cycle)
+        decision = result.decision
+        if decision is None:
+            return result.verdict, Decision((0.0, 0.0, 0.0), 0.0, "silent"), None
         self.autopilot.setpoint(np.array(decision.velocity_ned), decision.yaw_rate_rad_s, now_ns)
         return (
-            verdict,
+            result.verdict,
             decision,
             [round(v, 4) for v in (*decision.velocity_ned, decision.yaw_rate_rad_s)],
         )
