@@ -17,6 +17,7 @@ from avoidd.config import (
 )
 from avoidd.config.sim import load_world
 from avoidd.errors import BrokenFrame, ConfigError, SourceError, SourceExhausted
+from avoidd.fileread import not_regular
 from avoidd.mavlink.messages import sensor_orientation
 from avoidd.mavlink.signing import load_key
 from avoidd.sources.files import open_files
@@ -90,18 +91,31 @@ def load_all(path: Path, input_given: bool = False) -> tuple[AppConfig, dict[str
             load_key(signing.key_file, signing.key_credential)
         except ConfigError as exc:
             problems.extend(exc.lines)
-        folder = signing.timestamp_file.parent if signing.timestamp_file else None
-        if folder is not None and not os.access(folder, os.W_OK):
-            problems.append(
-                f"mavlink.signing.timestamp_file: folder {folder} missing or not writable; "
-                "create it (systemd: StateDirectory=avoidd)"
+        if signing.timestamp_file is not None:
+            problems.extend(
+                _check_state_file("mavlink.signing.timestamp_file", signing.timestamp_file)
             )
+    if config.avoidance.params_file is not None:
+        problems.extend(_check_state_file("avoidance.params_file", config.avoidance.params_file))
     problems.extend(_check_min_distance(path, config, calibrations))
     if not input_given:
-        problems.extend(_check_recordings(path, config))
+        problems.extend(_check_recordings(path, config, calibrations))
     if problems:
         raise ConfigError(problems)
     return config, calibrations
+
+
+def _check_state_file(key: str, path: Path) -> list[str]:
+    """A file avoidd keeps across restarts: a regular file if it exists, in a writable folder."""
+    reason = not_regular(path)
+    if reason is not None:
+        return [f"{key}: {path} is {reason}; name a file (or nothing yet) in a writable folder"]
+    if not os.access(path.parent, os.W_OK):
+        return [
+            f"{key}: folder {path.parent} missing or not writable; create it "
+            "(systemd: StateDirectory=avoidd)"
+        ]
+    return []
 
 
 def _check_sim_source(path: Path, head: HeadConfig, calibration: Calibration) -> list[str]:
@@ -194,19 +208,40 @@ def _check_min_distance(
     ]
 
 
-def _check_recordings(path: Path, config: AppConfig) -> list[str]:
-    """Every ``files`` source opens and yields a first frame (``frames.csv`` fully parsed)."""
+def _check_recordings(
+    path: Path, config: AppConfig, calibrations: dict[str, Calibration]
+) -> list[str]:
+    """Every ``files`` source opens and yields a first frame of its calibration's size.
+
+    ``frames.csv`` is parsed whole; the first pair is decoded (its size read from the image
+    headers first, so a huge image is refused before it is decoded).
+    """
     problems = []
     for head in config.heads:
         source = head.source
         if not isinstance(source, FilesSourceConfig):
             continue
+        where = f"{path}: heads.{head.name}.source.path"
         try:
             opened = open_files(source.path, source.fps, paced=False, loop=False)
             try:
-                opened.read()
+                frame = opened.read()
             finally:
                 opened.close()
         except (SourceError, BrokenFrame, SourceExhausted) as exc:
-            problems.append(f"{path}: heads.{head.name}.source.path: {exc}")
+            problems.append(f"{where}: {exc}")
+            continue
+        calibration = calibrations.get(head.name)
+        if calibration is None:
+            continue
+        rig = calibration.rig
+        for side, view in (("left", frame.left), ("right", frame.right)):
+            height, width = view.shape[:2]
+            if (width, height) != (rig.width, rig.height):
+                problems.append(
+                    f"{where}: the first {side} view is {width}x{height} but "
+                    f"{calibration.source} is for {rig.width}x{rig.height}; record with that "
+                    "camera or use its calibration"
+                )
+                break
     return problems

@@ -16,6 +16,7 @@ from pydantic import BaseModel, ValidationError
 from pydantic_core import ErrorDetails
 
 from avoidd.errors import ConfigError
+from avoidd.fileread import UnreadableFile, read_bounded
 
 M = TypeVar("M", bound=BaseModel)
 LocPart = str | int
@@ -136,28 +137,49 @@ def _check_expansion(path: Path, root: yaml.Node) -> None:
     size(root)
 
 
+_NOT_IN_YAML = re.compile(
+    "[^\x09\x0a\x0d\x20-\x7e\x85\xa0-\ud7ff\ue000-\ufffd\U00010000-\U0010ffff]"
+)
+"""Characters YAML does not allow in a file (PyYAML's own test): control characters such as NUL,
+BEL, ESC and DEL, and the non-characters U+FFFE and U+FFFF."""
+_CONTROL_NAMES = {0x00: "NUL", 0x07: "BEL", 0x08: "BS", 0x1B: "ESC", 0x7F: "DEL"}
+
+
 def _read_text(path: Path) -> str:
-    """The file as text: bounded in size, UTF-8, errors naming the file (and line)."""
+    """The file as text: a regular file, bounded in size, UTF-8, of characters YAML allows.
+
+    Every refusal names the file (and line) and the remedy.
+    """
     try:
-        with path.open("rb") as handle:
-            data = handle.read(MAX_FILE_BYTES + 1)
-    except OSError as exc:
-        reason = exc.strerror or str(exc)
-        raise ConfigError([f"{path}: cannot read the file ({reason}); check the path"]) from exc
-    if len(data) > MAX_FILE_BYTES:
-        raise ConfigError(
-            [
-                f"{path}: larger than {MAX_FILE_BYTES // 1_000_000} MB, too large for a YAML "
-                "file of avoidd; is it the right file?"
-            ]
+        data = read_bounded(path, MAX_FILE_BYTES)
+    except FileNotFoundError as exc:
+        raise ConfigError([f"{path}: no such file; check the path"]) from exc
+    except UnreadableFile as exc:
+        hint = (
+            "too large for a YAML file of avoidd; is it the right file?"
+            if exc.reason.startswith("larger")
+            else "give the path of a YAML file"
         )
+        raise ConfigError([f"{path}: {exc.reason}; {hint}"]) from None
     try:
-        return data.decode("utf-8")
+        text = data.decode("utf-8")
     except UnicodeDecodeError as exc:
         line = data[: exc.start].count(b"\n") + 1
         raise ConfigError(
             [f"{path}:{line}: byte 0x{data[exc.start]:02x} is not UTF-8; save the file as UTF-8"]
         ) from None
+    bad = _NOT_IN_YAML.search(text)
+    if bad is not None:
+        code = ord(bad.group())
+        name = _CONTROL_NAMES.get(code, "a control character" if code < 0xA0 else "a non-character")
+        line = text.count("\n", 0, bad.start()) + 1
+        raise ConfigError(
+            [
+                f"{path}:{line}: character U+{code:04X} ({name}) is not allowed in YAML; "
+                "remove it (is it the right file?)"
+            ]
+        )
+    return text
 
 
 def load_yaml(path: Path, prepare: Callable[[str], str] | None = None) -> YamlDocument:
@@ -181,8 +203,9 @@ def load_yaml(path: Path, prepare: Callable[[str], str] | None = None) -> YamlDo
     text = _read_text(path)
     if prepare is not None:
         text = prepare(text)
-    loader = _BoundedLoader(text, path)
+    loader: _BoundedLoader | None = None
     try:
+        loader = _BoundedLoader(text, path)
         root = loader.get_single_node()
         if root is None:
             raise ConfigError([f"{path}:1: the file is empty; it needs at least 'version: 1'"])
@@ -199,9 +222,11 @@ def load_yaml(path: Path, prepare: Callable[[str], str] | None = None) -> YamlDo
             [f"{path}:{line}: YAML syntax error: {what}; check indentation and quoting"]
         ) from exc
     except yaml.YAMLError as exc:
-        raise ConfigError([f"{path}: YAML error: {exc}"]) from exc
+        reason = " ".join(str(exc).split())
+        raise ConfigError([f"{path}: YAML error: {reason}; fix the file"]) from None
     finally:
-        loader.dispose()
+        if loader is not None:
+            loader.dispose()
     return YamlDocument(path, data, root)
 
 

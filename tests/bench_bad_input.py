@@ -5,8 +5,10 @@ avoidd's imports included (what a user waits for). The cases: the broken-configu
 (``tests/test_config_corpus.py``) and the hostile inputs of ``tests/test_bad_input.py``: a config
 that is not UTF-8, one larger than 1 MB, a YAML alias bomb, deep nesting, a 5000-digit number,
 and the broken ``frames.csv`` indexes of ``BAD_INDEXES`` (negative or overflowing times, not
-UTF-8, broken early in 10 MB, more or fewer rows than images, 70 MB). The target (issue 21):
-each answered within 1 s.
+UTF-8, broken early in 10 MB, more or fewer rows than images, 70 MB), and the files of
+``tests/test_bad_files.py`` (control characters in YAML, a FIFO, a device or a folder where a
+file is named, a recording of the wrong size, a 20000x20000 PNG). The target (issue 21): each
+answered within 1 s.
 
 Run: ``.venv/bin/python -m tests.bench_bad_input [--quick] [--json FILE]``. Prints one line per
 case sorted by time, then the median, 95th percentile and maximum next to a bare Python start and
@@ -27,6 +29,7 @@ from collections.abc import Iterator
 from pathlib import Path
 
 from tests.helpers import REPO, synthetic_config
+from tests.test_bad_files import hostile_files
 from tests.test_bad_input import BAD_INDEXES, _bomb, bad_recording
 from tests.test_config_corpus import CALIBRATION, CASES, DEMO
 from tests.test_offline_config import _config
@@ -86,7 +89,8 @@ def main(argv: list[str] | None = None) -> int:
     rows: list[tuple[float, int, str, str]] = []
     with tempfile.TemporaryDirectory(prefix="avoidd-bench-bad-") as temp:
         folder = Path(temp)
-        cases = [*_corpus(folder), *_hostile(folder), *_indexes(folder)]
+        files = [(name, path) for name, path, _ in hostile_files(folder / "files")]
+        cases = [*_corpus(folder), *_hostile(folder), *_indexes(folder), *files]
         if args.quick:
             cases = [c for i, c in enumerate(cases) if i % 5 == 0 or not c[0].startswith("conf")]
         for name, path in cases:

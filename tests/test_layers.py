@@ -46,6 +46,7 @@ LAYERS: list[tuple[str, tuple[str, ...]]] = [
             "avoidd.looplag",
             "avoidd.logrepeat",
             "avoidd.progress",
+            "avoidd.fileread",
         ),
     ),
 ]

@@ -10,6 +10,7 @@ import numpy as np
 import numpy.typing as npt
 
 from avoidd.errors import ConfigError
+from avoidd.fileread import UnreadableFile, read_bounded
 from avoidd.vision.calibration import RectifiedModel, StereoModel
 from avoidd.yamlfile import load_yaml
 
@@ -42,9 +43,11 @@ def read_middlebury(path: Path) -> MiddleburyCalib:
         ConfigError: The file is missing a field or a value does not parse.
     """
     try:
-        text = path.read_text(encoding="utf-8")
+        text = read_bounded(path, 64_000).decode("utf-8", "replace")
     except OSError as exc:
         raise ConfigError([f"{path}: cannot read ({exc.strerror})"]) from exc
+    except UnreadableFile as exc:
+        raise ConfigError([f"{path}: {exc.reason}; give a Middlebury calib.txt"]) from None
     values: dict[str, str] = dict(re.findall(r"(\w+)\s*=\s*([^\n]+)", text))
     try:
         return MiddleburyCalib(

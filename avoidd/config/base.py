@@ -8,6 +8,8 @@ from typing import Annotated
 from pydantic import AfterValidator, BaseModel, BeforeValidator, ConfigDict, ValidationInfo
 from pydantic import Strict as StrictMode
 
+from avoidd.fileread import not_regular
+
 
 class Strict(BaseModel):
     """Base of every config section: frozen, unknown keys are errors, numbers are finite.
@@ -53,6 +55,9 @@ ConfigPath = Annotated[Path, Lax, AfterValidator(_resolve_path)]
 
 
 def _existing_file(value: Path) -> Path:
+    reason = not_regular(value)
+    if reason is not None:
+        raise ValueError(f"{value} is {reason}; give the path of a file")
     if not value.is_file():
         raise ValueError(f"file not found: {value}; check the path (relative to the config file)")
     return value

@@ -23,8 +23,12 @@ from pathlib import Path
 from typing import Literal
 
 from avoidd.config import AvoidanceConfig
+from avoidd.fileread import UnreadableFile, read_bounded
 
 logger = logging.getLogger(__name__)
+
+_MAX_PARAMS_FILE_BYTES = 64_000
+"""The saved parameters are a dozen numbers; a larger file is not ours."""
 
 
 @dataclass(frozen=True)
@@ -86,8 +90,8 @@ class ParamTable:
 
     def _load(self, path: Path) -> None:
         try:
-            saved = json.loads(path.read_text())
-        except (OSError, ValueError) as exc:
+            saved = json.loads(read_bounded(path, _MAX_PARAMS_FILE_BYTES))
+        except (OSError, ValueError, UnreadableFile) as exc:
             logger.warning("avoidance parameters: %s unreadable (%s); using the config", path, exc)
             return
         if not isinstance(saved, dict):

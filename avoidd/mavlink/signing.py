@@ -23,6 +23,7 @@ from pathlib import Path
 from typing import Any
 
 from avoidd.errors import ConfigError
+from avoidd.fileread import UnreadableFile, read_bounded
 
 logger = logging.getLogger(__name__)
 
@@ -39,6 +40,11 @@ NEW_STREAM_WINDOW = 60 * UNITS_PER_S
 (MAVLink's rule)."""
 _LEGACY_LEAD_S = 60
 """Files of earlier versions hold a mark this far ahead of the timestamp then in use."""
+
+MAX_KEY_FILE_BYTES = 1024
+"""A key file holds 32 bytes or 64 hex digits (and whitespace); more is no key file."""
+MAX_TIMESTAMP_FILE_BYTES = 1_000_000
+"""The timestamp file: ours and one line per signed sender, a few kilobytes at most."""
 
 Stream = tuple[int, int, int]
 """A signed sender: (link id, system id, component id)."""
@@ -86,11 +92,18 @@ def load_key(key_file: Path | None, credential: str | None) -> bytes:
     else:
         raise ConfigError(["mavlink.signing: set key_file or key_credential"])
     try:
-        data = path.read_bytes()
-    except OSError as exc:
+        data = read_bounded(path, MAX_KEY_FILE_BYTES)
+    except FileNotFoundError as exc:
         raise ConfigError(
-            [f"{path}: cannot read the signing key ({exc.strerror}); check path and permissions"]
+            [f"{path}: cannot read the signing key (no such file); check path and permissions"]
         ) from exc
+    except UnreadableFile as exc:
+        raise ConfigError(
+            [
+                f"{path}: cannot read the signing key: {exc.reason}; give a file of 32 raw "
+                "bytes or 64 hex digits"
+            ]
+        ) from None
     return parse_key(data, str(path))
 
 
@@ -188,10 +201,10 @@ class TimestampStore:
         if self.path is None:
             return None
         try:
-            text = self.path.read_text()
+            text = read_bounded(self.path, MAX_TIMESTAMP_FILE_BYTES).decode("utf-8")
         except FileNotFoundError:
             return None
-        except (OSError, UnicodeDecodeError) as exc:
+        except (UnreadableFile, UnicodeDecodeError) as exc:
             logger.warning("signing timestamp %s unreadable (%s); using the clock", self.path, exc)
             return None
         try:

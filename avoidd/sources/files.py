@@ -14,7 +14,9 @@ import cv2
 import numpy as np
 
 from avoidd.errors import BrokenFrame, SourceError, SourceExhausted
+from avoidd.fileread import UnreadableFile, read_bounded
 from avoidd.sources.base import Pacer
+from avoidd.sources.imagesize import MAX_IMAGE_PIXELS, image_size
 from avoidd.types import FramePose, Image, StereoFrame, VehicleSample, wrap_deg
 
 logger = logging.getLogger(__name__)
@@ -34,6 +36,8 @@ MAX_T_CAPTURE_NS = 2**63 - 1
 """Capture times are monotonic nanoseconds: 0 to the largest signed 64-bit number."""
 MAX_INDEX_BYTES = 64_000_000
 """Largest ``frames.csv`` read: about 400,000 rows with every column (hours of frames)."""
+MAX_IMAGE_BYTES = 256_000_000
+"""Largest image file read (a 33.5-megapixel view in 16-bit colour, uncompressed, is 201 MB)."""
 
 
 @dataclass(frozen=True)
@@ -101,9 +105,11 @@ def _read_utf8(path: Path) -> str:
                 f"{path}: {size / 1e6:.0f} MB, larger than the {MAX_INDEX_BYTES // 1_000_000} MB "
                 "an index may be (about 400,000 frames with every column); split the recording"
             )
-        data = path.read_bytes()
+        data = read_bounded(path, MAX_INDEX_BYTES)
     except OSError as exc:
         raise SourceError(f"{path}: cannot read ({exc.strerror or exc})") from exc
+    except UnreadableFile as exc:
+        raise SourceError(f"{path}: {exc.reason}; an index is a CSV file") from None
     try:
         return data.decode("utf-8")
     except UnicodeDecodeError as exc:
@@ -187,7 +193,7 @@ def list_pairs(folder: Path) -> list[_Pair]:
     if not left_dir.is_dir() or not right_dir.is_dir():
         raise SourceError(f"{folder}: expected 'left/' and 'right/' folders of images")
     index = folder / "frames.csv"
-    if index.is_file():
+    if index.exists():
         return _read_index(folder, index)
     left_images, right_images = _images(left_dir), _images(right_dir)
     if len(left_images) != len(right_images):
@@ -254,7 +260,7 @@ class FolderSource:
         else:
             t_capture_ns = int(seq * 1e9 / self._fps)
         for path in (pair.left, pair.right):
-            if not path.is_file():
+            if not path.exists():
                 raise BrokenFrame(
                     f"{path}: missing (was the recording moved or deleted?); frame {seq} dropped"
                 )
@@ -288,9 +294,17 @@ def read_image(path: Path, seq: int) -> np.ndarray:
         BrokenFrame: The file is truncated or does not decode.
     """
     try:
-        data = path.read_bytes()
-    except OSError as exc:
-        raise BrokenFrame(f"{path}: cannot read ({exc.strerror}); frame {seq} dropped") from exc
+        data = read_bounded(path, MAX_IMAGE_BYTES)
+    except FileNotFoundError as exc:
+        raise BrokenFrame(f"{path}: missing; frame {seq} dropped") from exc
+    except UnreadableFile as exc:
+        raise BrokenFrame(f"{path}: {exc.reason}; frame {seq} dropped") from None
+    size = image_size(data)
+    if size is not None and size[0] * size[1] > MAX_IMAGE_PIXELS:
+        raise BrokenFrame(
+            f"{path}: {size[0]}x{size[1]} pixels, more than the {MAX_IMAGE_PIXELS / 1e6:.1f} "
+            f"megapixels avoidd reads (is it a camera view?); frame {seq} dropped"
+        )
     suffix = path.suffix.lower()
     ends = {".png": _PNG_END, ".jpg": _JPEG_END, ".jpeg": _JPEG_END}.get(suffix)
     if ends is not None and not data.rstrip(b"\0").endswith(ends):
@@ -323,6 +337,14 @@ class SideBySideVideoSource:
         self._path = path
         self._loop = loop
         self._capture = self._open()
+        width = int(self._capture.get(cv2.CAP_PROP_FRAME_WIDTH) or 0)
+        height = int(self._capture.get(cv2.CAP_PROP_FRAME_HEIGHT) or 0)
+        if width * height > 2 * MAX_IMAGE_PIXELS:
+            self._capture.release()
+            raise SourceError(
+                f"{path}: frames of {width}x{height} pixels, more than two views of "
+                f"{MAX_IMAGE_PIXELS / 1e6:.1f} megapixels (is it a stereo recording?)"
+            )
         video_fps = float(self._capture.get(cv2.CAP_PROP_FPS) or 0.0)
         self._fps = fps or (video_fps if 0 < video_fps < 1000 else DEFAULT_FPS)
         self._pacer = Pacer(self._fps) if paced else None
