@@ -22,6 +22,7 @@ from avoidd.planner.core import (
     stopping_speed_m_s,
 )
 from avoidd.planner.track import track_velocity_ne
+from avoidd.planner.tuning import DEFAULT, Tuning
 from avoidd.types import TrackPoint
 
 S = 1_000_000_000
@@ -96,10 +97,12 @@ def test_too_few_positions_or_too_short_a_span_give_no_track() -> None:
     assert track_velocity_ne(gap) is None
 
 
-def _planner_by_a_wall(wall_north_m: float, *, both_sides: bool = False) -> Planner:
+def _planner_by_a_wall(
+    wall_north_m: float, *, both_sides: bool = False, tuning: Tuning = DEFAULT
+) -> Planner:
     """A planner at the origin remembering a wall ``wall_north_m`` to the north."""
     config = {"enabled": True, "max_speed_m_s": 2.0, "unknown": "free"}
-    planner = Planner(AvoidanceConfig.model_validate(config), 20.0)
+    planner = Planner(AvoidanceConfig.model_validate(config), 20.0, tuning)
     east = np.arange(-3.0, 3.01, 0.1)
     points = [np.stack([np.full(east.size, wall_north_m), east], axis=1)]
     if both_sides:
@@ -289,7 +292,7 @@ def test_a_hold_asks_no_drift_back_for_a_jump_nor_beyond_a_stop_or_the_maximum_s
     pose = Pose(4 * S, 0.0, 0.0, -2.0, math.pi / 2, 0.0, 0.0, (0.5, 0.0))
     assert behind.drift_back_m_s(pose) == pytest.approx((-0.4, 0.0), abs=1e-6)  # one-sided
     free_m = float(behind.free_m(pose, np.array([math.pi]))[0])
-    stop = stopping_speed_m_s(free_m, behind.config.max_accel_m_s2, behind._latency_s(4 * S))
+    stop = stopping_speed_m_s(free_m, behind.config.max_accel_m_s2, behind.latency_s(4 * S))
     assert 0.0 < stop < 0.4
     held = behind.hold("stale", 30.0, pose)
     assert held.velocity_ned[:2] == pytest.approx((-stop, 0.0), abs=1e-3)
@@ -392,7 +395,7 @@ def test_a_dead_end_backs_away_and_an_arrival_beside_a_wall_stays() -> None:
     still = _pose(None, reported=(0.0, 0.0))
     # Dead-ended inside the clearance: it turns to look and backs away meanwhile.
     planner = _planner_by_a_wall(wall_m)
-    looking = planner._dead_end(S, still, 30.0, 0.0)
+    looking = planner._look_around(S, still, 30.0, 0.0)
     assert looking.state == "dead end"
     assert looking.velocity_ned[:2] == pytest.approx((-0.5, 0.0), abs=1e-6)
     # Arrived at a goal within the clearance of the wall: it stays (backing out of the
@@ -460,7 +463,7 @@ def test_a_hold_backs_away_into_ground_the_cameras_have_not_seen() -> None:
         assert planner.hold(state, 30.0, still).velocity_ned[:2] == pytest.approx(
             (-0.5, 0.0), abs=1e-6
         )
-    looking = planner._dead_end(S, still, 30.0, 0.0)
+    looking = planner._look_around(S, still, 30.0, 0.0)
     assert looking.velocity_ned[:2] == pytest.approx((-0.5, 0.0), abs=1e-6)
     # With a drift toward the wall the 0.4 m/s asked back adds to it, but into unseen ground
     # no faster than a back-away at most: 0.9 asked, 0.75 sent.
@@ -477,7 +480,7 @@ def test_a_hold_backs_away_into_ground_the_cameras_have_not_seen() -> None:
     later = Pose(3 * S, 0.0, 0.0, -2.0, 0.0, 0.0, 0.0, None)
     room_m = float(planner.obstacle_free_m(later, np.array([math.pi]))[0])
     assert room_m == pytest.approx(0.65, abs=1e-6)
-    stop_m_s = stopping_speed_m_s(room_m, config.max_accel_m_s2, planner._latency_s(3 * S))
+    stop_m_s = stopping_speed_m_s(room_m, config.max_accel_m_s2, planner.latency_s(3 * S))
     assert stop_m_s < 0.5
     limited = planner.hold("stale", 30.0, later).velocity_ned[:2]
     assert limited == pytest.approx((-stop_m_s, 0.0), abs=1e-6)
@@ -566,9 +569,7 @@ def _slide_along_the_wall(planner: Planner, wall_m: float) -> tuple[list[float],
     return depths, away
 
 
-def test_the_growing_back_away_settles_a_partly_following_vehicle_at_the_clearance(
-    monkeypatch: pytest.MonkeyPatch,
-) -> None:
+def test_the_growing_back_away_settles_a_partly_following_vehicle_at_the_clearance() -> None:
     wall_m = _planner_by_a_wall(2.0).clearance_m - 0.1
     settled, away = _slide_along_the_wall(_planner_by_a_wall(wall_m), wall_m)
     # The depth alone balances the drift about 0.2 m inside (as PX4 SITL did, edge 0.83 m);
@@ -577,6 +578,6 @@ def test_the_growing_back_away_settles_a_partly_following_vehicle_at_the_clearan
     assert max(settled) < 0.25
     # ... and stays there asking a steady speed away, not one that drops out and back.
     assert max(away[-30:]) - min(away[-30:]) < 0.05, away[-30:]
-    monkeypatch.setattr("avoidd.planner.core._BACK_AWAY_GROWTH", 0.0)
-    depth_only, _ = _slide_along_the_wall(_planner_by_a_wall(wall_m), wall_m)
+    no_growth = Tuning(back_away_growth_per_s2=0.0)
+    depth_only, _ = _slide_along_the_wall(_planner_by_a_wall(wall_m, tuning=no_growth), wall_m)
     assert min(depth_only[-20:]) > 0.15, depth_only[-20:]
