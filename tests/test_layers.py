@@ -47,6 +47,7 @@ LAYERS: list[tuple[str, tuple[str, ...]]] = [
             "avoidd.logrepeat",
             "avoidd.progress",
             "avoidd.fileread",
+            "avoidd.foreignlog",
         ),
     ),
 ]

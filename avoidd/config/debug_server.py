@@ -3,12 +3,16 @@
 from __future__ import annotations
 
 import ipaddress
+from typing import Annotated
 
-from pydantic import Field, ValidationInfo, field_validator
+from pydantic import Field, ValidationInfo, field_validator, model_validator
 
 from avoidd.config.base import Strict
 
 LOOPBACK_NAMES = frozenset({"localhost", "localhost.localdomain", "ip6-localhost"})
+_LABEL = r"[A-Za-z0-9]([A-Za-z0-9-]{0,61}[A-Za-z0-9])?"
+_HOST_NAME = rf"^{_LABEL}(\.{_LABEL})*\.?$"
+"""A DNS name: dot-separated labels of letters, digits and inner hyphens."""
 
 
 def is_loopback(host: str) -> bool:
@@ -34,11 +38,19 @@ class DebugServerConfig(Strict):
         token: When set, every request must carry it (``?token=...`` or
             ``Authorization: Bearer ...``); at least 16 characters.
         host: Address to listen on (``127.0.0.1``, ``::1``, ``localhost``; others need
-            ``allow_remote`` and ``token``).
+            ``allow_remote`` and ``token``). An IPv6 address may be written in brackets as in
+            a URL (``[::1]``).
         port: TCP port (0: any free port, logged at start).
         stream_fps: Frames per second of the image streams (each is encoded only while
             someone watches it).
         jpeg_quality: JPEG quality of the streams (higher: sharper, more CPU and bandwidth).
+        max_viewers: Image streams served at once; one more is answered 503 (each costs
+            the daemon's event loop a write per picture).
+        max_connections: HTTP connections open at once; one more is answered 503 and
+            closed (the view shares the daemon's file descriptors with cameras and link).
+        host_names: Names besides loopback ones (``localhost``) the view may be reached by
+            (``drone.local``); a request whose ``Host`` is another name is refused, which
+            stops DNS rebinding. Addresses (``127.0.0.1``, ``192.168.1.7``) always pass.
     """
 
     enabled: bool = False
@@ -48,10 +60,34 @@ class DebugServerConfig(Strict):
     port: int = Field(8080, ge=0, le=65535)
     stream_fps: float = Field(10.0, ge=0.5, le=30.0)
     jpeg_quality: int = Field(75, ge=20, le=95)
+    max_viewers: int = Field(8, ge=1, le=64)
+    max_connections: int = Field(32, ge=2, le=256)
+    # pydantic copies a mutable default per instance; ruff cannot see that Strict is a model.
+    host_names: list[Annotated[str, Field(pattern=_HOST_NAME)]] = []  # noqa: RUF012
+
+    @model_validator(mode="after")
+    def _viewers_fit(self) -> DebugServerConfig:
+        if self.max_connections <= self.max_viewers:
+            raise ValueError(
+                f"max_connections ({self.max_connections}) must exceed max_viewers "
+                f"({self.max_viewers}): the page and /api/stats need connections too"
+            )
+        return self
 
     @field_validator("host")
     @classmethod
     def _remote_needs_token(cls, value: str, info: ValidationInfo) -> str:
+        if value.startswith("[") or value.endswith("]"):
+            # A URL's brackets: the server listens on the address inside them.
+            inner = value.removeprefix("[").removesuffix("]")
+            try:
+                ipaddress.IPv6Address(inner)
+            except ValueError:
+                raise ValueError(
+                    f"'{value}': brackets hold an IPv6 address; write the address (::1) "
+                    "or a name without them"
+                ) from None
+            value = inner
         if is_loopback(value):
             return value
         if not info.data.get("allow_remote", False):

@@ -15,12 +15,13 @@ from typing import TYPE_CHECKING, Any
 
 import cv2
 
-from avoidd import sources
+from avoidd import foreignlog, sources
 from avoidd.config import AppConfig, MavlinkConfig, SimSourceConfig, SourceConfig
 from avoidd.daemon import health
 from avoidd.daemon.announce import Announcer, send_statustext
 from avoidd.daemon.avoidance import AvoidanceLoop
 from avoidd.daemon.head import Head, OpenSource
+from avoidd.daemon.limits import raise_open_files_limit
 from avoidd.daemon.notify import Notifier, watchdog_interval_s
 from avoidd.daemon.outputs import Outputs
 from avoidd.daemon.stats import DaemonStats, log_every, snapshot
@@ -212,6 +213,15 @@ class Daemon:
         for signum in (signal.SIGINT, signal.SIGTERM):
             with contextlib.suppress(NotImplementedError, RuntimeError):
                 loop.add_signal_handler(signum, self.stop)
+        raise_open_files_limit()
+        foreign = foreignlog.install(loop)  # aiohttp's and the loop's errors: counted lines
+        try:
+            return await self._run(loop)
+        finally:
+            foreignlog.uninstall(loop, foreign)
+
+    async def _run(self, loop: asyncio.AbstractEventLoop) -> int:
+        """The body of :meth:`run`, once signals and error reports are set up."""
         announcer = Announcer(loop)
         max_range_m = (
             obstacle_range_cm(

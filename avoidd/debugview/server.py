@@ -25,6 +25,7 @@ from prometheus_client import CONTENT_TYPE_LATEST, CollectorRegistry, generate_l
 
 from avoidd.config import DebugServerConfig
 from avoidd.debugview import metrics, views
+from avoidd.debugview.gate import ConnectionGate, host_allowed
 from avoidd.debugview.page import page_html
 
 if TYPE_CHECKING:
@@ -36,6 +37,8 @@ logger = logging.getLogger(__name__)
 _BOUNDARY = "avoiddframe"
 _RATE_WINDOW_NS = 1_000_000_000
 _RETRY_BIND_S = 10.0
+_KEEPALIVE_S = 10.0
+"""An idle kept-alive connection is closed after this long (aiohttp's default is 75 s)."""
 
 Handler = Callable[[web.Request], Awaitable[web.StreamResponse]]
 
@@ -52,6 +55,8 @@ class DebugServer:
         port: The port listened on, once started (the chosen one when configured as 0).
         counter: JPEG pictures encoded so far, and their cost.
         viewers: Streams being watched now.
+        gate: Bounds the open connections, once serving.
+        refused_hosts: Requests refused for their ``Host`` header.
     """
 
     def __init__(self, config: DebugServerConfig, daemon: Daemon) -> None:
@@ -60,6 +65,8 @@ class DebugServer:
         self.port: int | None = None
         self.counter = views.EncodeCounter()
         self.viewers = 0
+        self.gate: ConnectionGate | None = None
+        self.refused_hosts = 0
         self._streams: dict[str, views.Stream] = {}
         self._previous: DaemonStats | None = None
         self._closing = False
@@ -99,8 +106,8 @@ class DebugServer:
         return stream
 
     def app(self) -> web.Application:
-        """The aiohttp application (routes and the token check)."""
-        app = web.Application(middlewares=[self._check_token])
+        """The aiohttp application (routes, the host check and the token check)."""
+        app = web.Application(middlewares=[self._check_host, self._check_token])
         app.router.add_get("/", self._page)
         app.router.add_get("/api/stats", self._stats)
         app.router.add_get("/metrics", self._metrics)
@@ -109,6 +116,18 @@ class DebugServer:
         app.router.add_get("/snapshot/polar.jpg", self._snapshot_jpeg)
         app.router.add_get("/snapshot/head/{head}.jpg", self._snapshot_jpeg)
         return app
+
+    @web.middleware
+    async def _check_host(self, request: web.Request, handler: Handler) -> web.StreamResponse:
+        header = request.headers.get("Host")
+        if not host_allowed(header, [*self.config.host_names, self.config.host]):
+            self.refused_hosts += 1
+            raise web.HTTPMisdirectedRequest(
+                text=f"host '{header}' is not served here (DNS rebinding?); open the view by "
+                "its address, e.g. http://127.0.0.1:PORT/, or add the name to "
+                "debug_server.host_names\n"
+            )
+        return await handler(request)
 
     @web.middleware
     async def _check_token(self, request: web.Request, handler: Handler) -> web.StreamResponse:
@@ -158,6 +177,12 @@ class DebugServer:
 
     async def _mjpeg(self, request: web.Request) -> web.StreamResponse:
         stream = self._requested(request)
+        if self.viewers >= self.config.max_viewers:
+            raise web.HTTPServiceUnavailable(
+                text=f"{self.viewers} streams are being watched, the most the debug view "
+                "serves (debug_server.max_viewers); close one and retry\n",
+                headers={"Retry-After": "5"},
+            )
         response = web.StreamResponse(
             headers={
                 "Content-Type": f"multipart/x-mixed-replace; boundary={_BOUNDARY}",
@@ -195,13 +220,17 @@ class DebugServer:
         A port that cannot be bound is logged and tried again every 10 s: the daemon flies on
         without its debug view.
         """
-        runner = web.AppRunner(self.app(), access_log=None, shutdown_timeout=1.0)
+        runner = web.AppRunner(
+            self.app(), access_log=None, shutdown_timeout=1.0, keepalive_timeout=_KEEPALIVE_S
+        )
         await runner.setup()
+        listening: asyncio.Server | None = None
         try:
-            await self._bind(runner)
+            assert runner.server is not None
+            self.gate = ConnectionGate(runner.server, self.config.max_connections)
+            listening = await self._bind(self.gate)
             self._previous = self._snapshot()  # the first /api/stats has rates since now
-            addresses = runner.addresses
-            self.port = int(addresses[0][1]) if addresses else self.config.port
+            self.port = int(listening.sockets[0].getsockname()[1])
             host = self.config.host
             shown = f"[{host}]" if ":" in host else host
             logger.info(
@@ -213,14 +242,17 @@ class DebugServer:
             await asyncio.Event().wait()
         finally:
             self._closing = True
+            if listening is not None:
+                listening.close()
             await runner.cleanup()
 
-    async def _bind(self, runner: web.AppRunner) -> web.TCPSite:
+    async def _bind(self, gate: ConnectionGate) -> asyncio.Server:
+        loop = asyncio.get_running_loop()
         while True:
-            site = web.TCPSite(runner, self.config.host, self.config.port)
             try:
-                await site.start()
-                return site
+                return await loop.create_server(
+                    gate, self.config.host, self.config.port, reuse_address=True
+                )
             except OSError as exc:
                 logger.error(
                     "debug view: cannot listen on %s port %d (%s); retrying in %.0f s",
