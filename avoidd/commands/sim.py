@@ -8,7 +8,6 @@ import os
 import sys
 from collections.abc import Callable
 from concurrent.futures import ProcessPoolExecutor, as_completed
-from dataclasses import dataclass
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
@@ -16,7 +15,8 @@ from avoidd.commands import EXIT_CONFIG, EXIT_FAILURE, EXIT_OK
 from avoidd.errors import ConfigError
 
 if TYPE_CHECKING:
-    from avoidd.config.sim import ScenarioConfig, WorldConfig
+    from avoidd.config.sim import ScenarioConfig
+    from avoidd.sim.batch import BatchJob
 
 _ARDUPILOT_DIR = Path("../shared/sitl/ardupilot")
 """ArduCopter SITL's folder when neither ``--binary-dir`` nor ``$AVOIDD_SITL_DIR`` says."""
@@ -99,6 +99,7 @@ def configure(name: str, parser: argparse.ArgumentParser) -> None:
 
 def run_one(args: argparse.Namespace) -> int:
     """Run one scenario; exit 0 when it passes its criteria, 1 when not."""
+    from avoidd.sim.report import format_table
     from avoidd.sim.scenario import run_file, write_outputs
 
     if args.realtime:
@@ -268,35 +269,6 @@ def run_px4(args: argparse.Namespace) -> int:
     return _report(summary, args.json, report)
 
 
-@dataclass(frozen=True)
-class BatchJob:
-    """One run of a batch: the validated configs travel to the worker, never the paths.
-
-    A worker on another machine (``--ray``) has no copy of the driver's files.
-
-    Attributes:
-        file: The scenario file, as given (for the report and the sort order).
-        scenario: Its validated config.
-        world: Its world file's config (None: a generated world).
-        seed: The seed of this run.
-        max_speed_m_s: Top speed override (None: the scenario's).
-    """
-
-    file: str
-    scenario: ScenarioConfig
-    world: WorldConfig | None
-    seed: int
-    max_speed_m_s: float | None
-
-
-def run_job(job: BatchJob) -> dict[str, Any]:
-    """Run one batch job (in a local process or a Ray task: the same code); its summary row."""
-    from avoidd.sim.scenario import run_config
-
-    _, summary = run_config(job.scenario, job.world, job.seed, job.max_speed_m_s)
-    return summary.as_json() | {"file": job.file, "wall_time_s": round(summary.wall_time_s, 1)}
-
-
 class RayUnavailable(Exception):
     """``--ray`` was given but Ray is not installed or the cluster cannot be reached."""
 
@@ -305,20 +277,14 @@ def run_batch(args: argparse.Namespace) -> int:
     """Run every scenario with seeds 1..N in local processes or on Ray; exit 0 when all pass."""
     from avoidd.config.sim import load_scenario
     from avoidd.progress import Progress
-    from avoidd.sim.scenario import world_of
+    from avoidd.sim.batch import batch_jobs
+    from avoidd.sim.report import format_table, format_totals
 
     # Every file valid (and read, with its world file) before anything runs.
     loaded = [(path, load_scenario(path)) for path in args.scenarios]
     if args.max_speed is not None and not 0.1 <= args.max_speed <= 20.0:
         raise ConfigError([f"--max-speed {args.max_speed}: give 0.1 to 20 m/s"])
-    jobs = []
-    for path, scenario in loaded:
-        world = world_of(scenario)
-        seed = _own_seed(scenario, world)
-        jobs += [
-            BatchJob(str(path), scenario, world, seed + offset, args.max_speed)
-            for offset in range(args.seeds)
-        ]
+    jobs = batch_jobs(loaded, args.seeds, args.max_speed)
     progress = Progress(len(jobs))
     results: list[dict[str, Any]] = []
 
@@ -348,6 +314,8 @@ def _run_local(
     jobs: list[BatchJob], workers: int, finished: Callable[[dict[str, Any]], None]
 ) -> None:
     """Run the jobs in local processes; hand each result over as it finishes."""
+    from avoidd.sim.batch import run_job
+
     with ProcessPoolExecutor(max_workers=workers) as pool:
         for future in as_completed([pool.submit(run_job, job) for job in jobs]):
             finished(future.result())
@@ -435,6 +403,8 @@ def _run_ray(
     except (ConnectionError, TimeoutError, ValueError, RuntimeError) as exc:
         first = str(exc).strip().splitlines()[0] if str(exc).strip() else type(exc).__name__
         raise RayUnavailable(_CANNOT_REACH.format(first)) from None
+    from avoidd.sim.batch import run_job
+
     try:
         task = ray.remote(num_cpus=1)(run_job)
         pending = [task.remote(job) for job in jobs]
@@ -444,70 +414,3 @@ def _run_ray(
                 finished(result)
     finally:
         ray.shutdown()
-
-
-def _number(value: float | None, digits: int = 2) -> str:
-    return "-" if value is None else f"{value:.{digits}f}"
-
-
-def format_table(results: list[dict[str, Any]]) -> str:
-    """One line per run: collision, clearance, goal, time, speed, side changes, verdict.
-
-    ``sides`` is the most side changes within one detour (a detour lasts while the chosen way is
-    more than 10 degrees off the goal's direction).
-    """
-    lines = [
-        f"{'scenario':24} {'seed':>4} {'coll':>4} {'min m':>6} {'p01 m':>6} {'goal':>4} "
-        f"{'t goal':>6} {'mean v':>6} {'sides':>5} {'end':9} {'wall s':>6} verdict"
-    ]
-    for r in results:
-        lines.append(
-            f"{r['name'][:24]:24} {r['seed']:>4} {'YES' if r['collided'] else 'no':>4} "
-            f"{_number(r['min_clearance_m']):>6} {_number(r['clearance_p01_m']):>6} "
-            f"{'yes' if r['reached'] else 'no':>4} {_number(r['time_to_goal_s'], 1):>6} "
-            f"{_number(r['mean_speed_m_s']):>6} {r.get('detour_side_changes', 0):>5} "
-            f"{r['end_state'][:9]:9} "
-            f"{_number(r.get('wall_time_s'), 1):>6} "
-            f"{'pass' if r['passed'] else 'FAIL: ' + '; '.join(r['failures'])}"
-        )
-    return "\n".join(lines)
-
-
-def format_totals(results: list[dict[str, Any]]) -> str:
-    """Collisions, goals reached, passes, mean time to goal over a batch."""
-    count = len(results)
-    collisions = sum(r["collided"] for r in results)
-    reached = [r for r in results if r["reached"]]
-    times = [r["time_to_goal_s"] for r in reached]
-    mean_time = sum(times) / len(times) if times else None
-    passed = sum(r["passed"] for r in results)
-    reachable = [r for r in results if r.get("reachable", True)]
-    reached_reachable = sum(r["reached"] for r in reachable)
-    dead_ends = [r for r in results if not r.get("reachable", True)]
-    no_path = sum(r["end_state"] == "no path" for r in dead_ends)
-    clear = sum(
-        r["clearance_p01_m"] is None or r["clearance_p01_m"] >= r.get("clearance_target_m", 0.0)
-        for r in results
-    )
-    sides = max((r.get("detour_side_changes", 0) for r in results), default=0)
-    holds = [r["stale_to_hold_ms"] for r in results if r.get("stale_to_hold_ms") is not None]
-    hold = f"; stale to zero-velocity setpoint at most {max(holds):.0f} ms" if holds else ""
-    share = 100.0 * reached_reachable / len(reachable) if reachable else 100.0
-    return (
-        f"{count} runs: {collisions} collisions, {len(reached)} goals reached, "
-        f"{passed} passed; mean time to goal {_number(mean_time, 1)} s\n"
-        f"reachable goals reached {reached_reachable}/{len(reachable)} ({share:.1f} %); "
-        f"dead ends ending 'no path' {no_path}/{len(dead_ends)}; clearance >= margin - 0.1 m "
-        f"in 99 % of steps: {clear}/{count} runs; most side changes in one detour: {sides}"
-        f"{hold}"
-    )
-
-
-def _own_seed(scenario: ScenarioConfig, world: WorldConfig | None) -> int:
-    """A scenario's own seed: its generator's, or its world file's."""
-    from avoidd.config.sim import GeneratedWorldConfig
-
-    if isinstance(scenario.world, GeneratedWorldConfig):
-        return scenario.world.seed
-    assert world is not None  # a scenario on a world file
-    return world.seed

@@ -142,6 +142,12 @@ class PassConfig(Strict):
         closest_approach_m: The smallest edge clearance of the run must lie within these
             bounds (a head-on wall: the vehicle comes up to its margin, not nearer, not far
             short of it).
+        max_side_changes: At most this many side changes within one detour (None: not
+            checked).
+        start_delay_s: The vehicle must be moving (faster than 0.3 m/s) within this time of
+            the start (None: not checked).
+        no_path_within_s: The planner must say "no path" within this time of the goal
+            (None: not checked).
     """
 
     no_collision: bool = True
@@ -149,6 +155,9 @@ class PassConfig(Strict):
     reach_goal_s: float | None = Field(None, gt=0.0, le=3600.0)
     end_state: Literal["arrived", "no path", "moving", "stale"] | None = None
     closest_approach_m: Annotated[tuple[float, float], Lax] | None = None
+    max_side_changes: int | None = Field(None, ge=0, le=1000)
+    start_delay_s: float | None = Field(None, gt=0.0, le=3600.0)
+    no_path_within_s: float | None = Field(None, gt=0.0, le=3600.0)
 
 
 class ScenarioConfig(Strict):

@@ -13,12 +13,11 @@ from __future__ import annotations
 import math
 import time
 from collections.abc import Callable
-from dataclasses import dataclass, field
-from typing import Any
+from dataclasses import dataclass
 
 import numpy as np
 
-from avoidd.config.sim import ScenarioConfig
+from avoidd.config.sim import ActionConfig, ScenarioConfig
 from avoidd.mavlink.messages import sectors_to_cm
 from avoidd.mavlink.track_history import TrackHistory
 from avoidd.perception.sectors import covered_bins
@@ -27,6 +26,7 @@ from avoidd.planner.cycle import AutopilotState, CycleInput, PlanningCycle
 from avoidd.planner.gating import Gate
 from avoidd.sim.flight import SimAutopilot
 from avoidd.sim.perception import StereoPerception
+from avoidd.sim.summary import Summary, Tally, judge
 from avoidd.sim.vehicle import Multirotor, VehicleState
 from avoidd.sim.world import World
 from avoidd.types import LocalPosition, Mount, RectifiedRig, SectorScan
@@ -47,46 +47,6 @@ RIGS = {
 
 Perceive = Callable[[VehicleState, int], SectorScan]
 """Produces the head's (filtered) scan for the vehicle's state at a capture time."""
-
-
-@dataclass
-class Summary:
-    """The outcome of one run (JSON-ready; rounded so that repeated runs compare equal)."""
-
-    name: str
-    seed: int
-    perception: str
-    collided: bool = False
-    collision_t_s: float | None = None
-    min_clearance_m: float = math.inf
-    clearance_p01_m: float = math.inf
-    reached: bool = False
-    time_to_goal_s: float | None = None
-    end_state: str = ""
-    mean_speed_m_s: float = 0.0
-    max_speed_m_s: float = 0.0
-    side_changes: int = 0
-    detour_side_changes: int = 0
-    reachable: bool = True
-    clearance_target_m: float = 0.0
-    stale_to_hold_ms: float | None = None
-    stale_holds: int = 0
-    passed: bool = False
-    failures: list[str] = field(default_factory=list)
-    sim_time_s: float = 0.0
-    wall_time_s: float = 0.0
-
-    def as_json(self) -> dict[str, Any]:
-        """The summary with floats rounded (the wall time is left out: it never repeats)."""
-        out: dict[str, Any] = {}
-        for key, value in self.__dict__.items():
-            if key == "wall_time_s":
-                continue
-            if isinstance(value, float):
-                out[key] = None if not math.isfinite(value) else round(value, 4)
-            else:
-                out[key] = value
-        return out
 
 
 @dataclass
@@ -118,6 +78,7 @@ class LockstepRun:
         goal: Where to fly (the scenario's, or the generator's).
         seed: Seed of the sensor noise.
         perceive: Makes the head's scan; by default the exact (oracle) distances.
+        world_kind: The generator that drew the world (``file``: a world file), for reports.
     """
 
     def __init__(
@@ -127,8 +88,10 @@ class LockstepRun:
         goal: Goal,
         seed: int = 0,
         perceive: Perceive | None = None,
+        world_kind: str = "file",
     ) -> None:
         self.scenario = scenario
+        self.world_kind = world_kind
         self.world = world
         self.goal: Goal | None = goal
         self.seed = seed
@@ -165,6 +128,11 @@ class LockstepRun:
         self.inputs: list[CycleInput] = []
         """Every planning cycle's input, when ``record_inputs``."""
         self.record_inputs = False
+        self._decision = Decision((0.0, 0.0, 0.0), 0.0, "waiting")
+        self._gate = Gate.SILENT
+        self._setpoint: list[float] | None = None
+        self._tally = Tally(Summary(scenario.name, seed, scenario.perception), STEP_S)
+        self._timeline: list[ActionConfig] = []
 
     # --- perception ------------------------------------------------------------------------
 
@@ -197,102 +165,78 @@ class LockstepRun:
         started = time.perf_counter()
         scenario = self.scenario
         avoidance = scenario.avoidance
-        summary = Summary(scenario.name, self.seed, scenario.perception)
+        summary = Summary(
+            scenario.name,
+            self.seed,
+            scenario.perception,
+            world_kind=self.world_kind,
+            speed_limit_m_s=avoidance.max_speed_m_s,
+        )
         # The issue's target: radius + margin - 0.1 m in 99 % of steps (edge clearance: margin
         # - 0.1 m, as clearance here is measured from the vehicle's edge).
-        summary.clearance_target_m = round(scenario.avoidance.margin_m - 0.1, 4)
-        steps = round(scenario.duration_s / STEP_S)
-        frame_every = round(1.0 / (scenario.fps * STEP_S))
-        plan_every = round(1.0 / (avoidance.setpoint_rate_hz * STEP_S))
-        send_every = round(1.0 / (OBSTACLE_DISTANCE_HZ * STEP_S))
-        trace_every = round(1.0 / (TRACE_HZ * STEP_S))
-        timeline = sorted(scenario.timeline, key=lambda a: a.t_s)
-        clearances: list[float] = []
-        speeds: list[float] = []
-        decision = Decision((0.0, 0.0, 0.0), 0.0, "waiting")
-        gate_now = Gate.SILENT
-        setpoint: list[float] | None = None
-        last_side = 0
-        detour_changes = 0
-        stale_since_ns: int | None = None
-        was_fresh = False
-        radius = avoidance.vehicle_radius_m
-        for step in range(steps + 1):
-            t_s = step * STEP_S
-            now_ns = round(t_s * 1e9)
-            while timeline and timeline[0].t_s <= t_s + 1e-9:
-                self._act(timeline.pop(0), now_ns)
-            state = self.vehicle.state
-            if step % frame_every == 0 and self.camera_on:
-                scan = self.perceive(state, now_ns)
-                available = now_ns + round(LATENCY_S * 1e9)
-                self._position(now_ns)
-                self._pending.append((available, scan, state.yaw_rad))
-            while self._pending and self._pending[0][0] <= now_ns:
-                _, scan, yaw_then = self._pending.pop(0)
-                self._latest = (scan, yaw_then)
-            fresh = self.fresh_scan(now_ns)
-            if fresh is None and was_fresh:
-                stale_since_ns = now_ns  # perception just went stale
-            was_fresh = fresh is not None
-            if step % send_every == 0:
-                self._send_obstacle_distance(fresh, now_ns)
-            if step % plan_every == 0:
-                gate_now, decision, setpoint = self._plan(now_ns, fresh)
-                if decision.direction_deg is not None and self.goal is not None:
-                    side = self._side(decision.direction_deg)
-                    if side and last_side and side != last_side:
-                        summary.side_changes += 1
-                        detour_changes += 1
-                        summary.detour_side_changes = max(
-                            summary.detour_side_changes, detour_changes
-                        )
-                    if not side:
-                        detour_changes = 0  # heading for the goal again: that detour is over
-                    last_side = side
-                if gate_now is Gate.HOLD:
-                    summary.stale_holds += 1
-                    if stale_since_ns is not None and decision.state == "stale":
-                        # Stale perception to a hold setpoint (the worst of the run).
-                        waited_ms = (now_ns - stale_since_ns) / 1e6
-                        summary.stale_to_hold_ms = max(summary.stale_to_hold_ms or 0.0, waited_ms)
-                        stale_since_ns = None
-            velocity, yaw_rate = self.autopilot.command(now_ns, state.yaw_rad)
-            self.vehicle.step(STEP_S, velocity, yaw_rate)
-            state = self.vehicle.state
-            north, east, _ = (float(v) for v in state.position_m)
-            clearance = self.world.clearance_m(north, east, state.altitude_m) - radius
-            clearances.append(clearance)
-            speed = float(np.hypot(state.velocity_m_s[0], state.velocity_m_s[1]))
-            speeds.append(speed)
-            if clearance < 0.0 and not summary.collided:
-                summary.collided = True
-                summary.collision_t_s = t_s
-            if decision.state == "arrived" and not summary.reached:
-                summary.reached = True
-                summary.time_to_goal_s = t_s
-            if step % trace_every == 0:
-                self.rows.append(self._row(t_s, gate_now, decision, setpoint, clearance, fresh))
+        summary.clearance_target_m = round(avoidance.margin_m - 0.1, 4)
+        self._tally = Tally(summary, STEP_S)
+        self._timeline = sorted(scenario.timeline, key=lambda a: a.t_s)
+        for step in range(round(scenario.duration_s / STEP_S) + 1):
+            self._step(step)
             if summary.collided:
                 break
-        summary.end_state = decision.state
-        summary.min_clearance_m = float(min(clearances))
-        finite = [c for c in clearances if math.isfinite(c)]
-        summary.clearance_p01_m = float(np.percentile(finite, 1)) if finite else math.inf
-        summary.mean_speed_m_s = float(np.mean(speeds))
-        summary.max_speed_m_s = float(max(speeds))
-        summary.sim_time_s = len(clearances) * STEP_S
+        self._tally.finish(self._decision.state)
         summary.wall_time_s = time.perf_counter() - started
-        self._judge(summary)
+        judge(summary, scenario.passing)
         return summary
 
-    def _act(self, action: Any, now_ns: int) -> None:
+    def _every(self, rate_hz: float) -> int:
+        return round(1.0 / (rate_hz * STEP_S))
+
+    def _step(self, step: int) -> None:
+        """One time step: timeline, camera, scan delivery, planner, autopilot, vehicle, score."""
+        tally = self._tally
+        t_s = step * STEP_S
+        now_ns = round(t_s * 1e9)
+        while self._timeline and self._timeline[0].t_s <= t_s + 1e-9:
+            self._act(self._timeline.pop(0), now_ns)
+        state = self.vehicle.state
+        if step % self._every(self.scenario.fps) == 0 and self.camera_on:
+            scan = self.perceive(state, now_ns)
+            available = now_ns + round(LATENCY_S * 1e9)
+            self._position(now_ns)
+            self._pending.append((available, scan, state.yaw_rad))
+        while self._pending and self._pending[0][0] <= now_ns:
+            _, scan, yaw_then = self._pending.pop(0)
+            self._latest = (scan, yaw_then)
+        fresh = self.fresh_scan(now_ns)
+        tally.perception(fresh is not None, now_ns)
+        if step % self._every(OBSTACLE_DISTANCE_HZ) == 0:
+            self._send_obstacle_distance(fresh, now_ns)
+        if step % self._every(self.scenario.avoidance.setpoint_rate_hz) == 0:
+            self._gate, self._decision, self._setpoint = self._plan(now_ns, fresh)
+            direction = self._decision.direction_deg
+            side = None if direction is None or self.goal is None else self._side(direction)
+            tally.cycle(t_s, now_ns, self._decision.state, self._gate is Gate.HOLD, side)
+        velocity, yaw_rate = self.autopilot.command(now_ns, state.yaw_rad)
+        self.vehicle.step(STEP_S, velocity, yaw_rate)
+        state = self.vehicle.state
+        north, east, _ = (float(v) for v in state.position_m)
+        radius = self.scenario.avoidance.vehicle_radius_m
+        clearance = self.world.clearance_m(north, east, state.altitude_m) - radius
+        speed = float(np.hypot(state.velocity_m_s[0], state.velocity_m_s[1]))
+        tally.step(t_s, clearance, speed, self._decision.state)
+        if step % self._every(TRACE_HZ) == 0:
+            self.rows.append(
+                self._row(t_s, self._gate, self._decision, self._setpoint, clearance, fresh)
+            )
+
+    def _act(self, action: ActionConfig, now_ns: int) -> None:
         if action.action == "mode":
+            assert action.mode is not None  # the model requires it
             self.autopilot.set_mode(action.mode, now_ns)
         elif action.action == "goal":
             g = action.goal
+            assert g is not None  # the model requires it
             self.goal = Goal(g.north_m, g.east_m, g.altitude_m)
             self.cycle.new_goal()
+            self._tally.goal_given(now_ns / 1e9)
         elif action.action == "camera_unplug":
             self.camera_on = False
         elif action.action == "camera_replug":
@@ -384,31 +328,3 @@ class LockstepRun:
             self.autopilot.mode,
             sectors,
         )
-
-    def _judge(self, summary: Summary) -> None:
-        passing = self.scenario.passing
-        summary.reachable = passing.end_state != "no path"
-        if passing.no_collision and summary.collided:
-            summary.failures.append(f"collision at {summary.collision_t_s:.2f} s")
-        needed = passing.min_clearance_m
-        if needed is not None and summary.clearance_p01_m < needed:
-            summary.failures.append(
-                f"clearance {summary.clearance_p01_m:.2f} m in 1% of steps, below {needed} m"
-            )
-        if passing.reach_goal_s is not None and (
-            not summary.reached or (summary.time_to_goal_s or math.inf) > passing.reach_goal_s
-        ):
-            summary.failures.append(f"goal not reached within {passing.reach_goal_s} s")
-        if passing.end_state is not None and summary.end_state != passing.end_state:
-            summary.failures.append(f"ended '{summary.end_state}', not '{passing.end_state}'")
-        if passing.closest_approach_m is not None:
-            low, high = passing.closest_approach_m
-            if not low <= summary.min_clearance_m <= high:
-                summary.failures.append(
-                    f"closest approach {summary.min_clearance_m:.2f} m, not {low}..{high} m"
-                )
-        summary.passed = not summary.failures
-
-
-def _finite(value: float | None) -> float | None:
-    return None if value is None or not math.isfinite(value) else round(value, 3)

@@ -5,7 +5,8 @@ from __future__ import annotations
 import math
 from pathlib import Path
 
-from avoidd.sim.lockstep import LockstepRun, Summary
+from avoidd.sim.lockstep import LockstepRun
+from avoidd.sim.summary import Summary
 from avoidd.sim.world import SimBox, SimCylinder
 
 

@@ -16,7 +16,8 @@ from avoidd.config.sim import (
 )
 from avoidd.planner.core import Goal
 from avoidd.sim.generators import generate
-from avoidd.sim.lockstep import LockstepRun, Summary
+from avoidd.sim.lockstep import LockstepRun
+from avoidd.sim.summary import Summary
 from avoidd.sim.world import World
 
 
@@ -42,6 +43,7 @@ def prepare(
         world_config, goal = generate(generator, clearance_m)
         goal = scenario.goal or goal
         noise_seed = generator.seed
+        kind: str = generator.kind
     else:
         world_config = world if world is not None else load_world(scenario.world)
         if seed is not None:
@@ -49,11 +51,13 @@ def prepare(
         assert scenario.goal is not None  # the model requires it with a world file
         goal = scenario.goal
         noise_seed = world_config.seed
+        kind = "file"
     return LockstepRun(
         scenario,
         World.from_config(world_config),
         Goal(goal.north_m, goal.east_m, goal.altitude_m),
         seed=noise_seed,
+        world_kind=kind,
     )
 
 
