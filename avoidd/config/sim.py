@@ -13,87 +13,33 @@ from pydantic import AfterValidator, Field, model_validator
 
 from avoidd.config.avoidance import AvoidanceConfig
 from avoidd.config.base import ConfigPath, Lax, Strict, WholeNumber, _existing_file
+from avoidd.config.sim_world import (
+    BoxConfig,
+    CylinderConfig,
+    GeneratedWorldConfig,
+    Metres,
+    MotionConfig,
+    ObstacleConfig,
+    WallConfig,
+    WorldConfig,
+)
 from avoidd.yamlfile import load_yaml, validate_document
 
-Metres = Annotated[float, Field(ge=-1000.0, le=1000.0)]
-
-
-class BoxConfig(Strict):
-    """A box standing on the ground: centre of its footprint, size, yaw (degrees from north)."""
-
-    shape: Literal["box"]
-    north_m: Metres
-    east_m: Metres
-    length_m: float = Field(1.0, gt=0.0, le=500.0)
-    """Along its yaw direction."""
-    width_m: float = Field(1.0, gt=0.0, le=500.0)
-    height_m: float = Field(3.0, gt=0.0, le=200.0)
-    yaw_deg: float = Field(0.0, ge=-360.0, le=360.0)
-    textured: bool = True
-
-
-class WallConfig(Strict):
-    """A wall between two points on the ground (a thin box)."""
-
-    shape: Literal["wall"]
-    start_ne_m: Annotated[tuple[Metres, Metres], Lax]
-    end_ne_m: Annotated[tuple[Metres, Metres], Lax]
-    thickness_m: float = Field(0.3, gt=0.0, le=20.0)
-    height_m: float = Field(4.0, gt=0.0, le=200.0)
-    textured: bool = True
-
-    @model_validator(mode="after")
-    def _length(self) -> WallConfig:
-        if self.start_ne_m == self.end_ne_m:
-            raise ValueError("a wall needs two different end points")
-        return self
-
-
-class CylinderConfig(Strict):
-    """A pole or a tree trunk: a vertical cylinder standing on the ground."""
-
-    shape: Literal["pole", "tree"]
-    north_m: Metres
-    east_m: Metres
-    diameter_m: float = Field(0.3, gt=0.0, le=50.0)
-    height_m: float = Field(5.0, gt=0.0, le=200.0)
-    textured: bool = True
-
-
-ObstacleConfig = Annotated[BoxConfig | WallConfig | CylinderConfig, Field(discriminator="shape")]
-
-
-class WorldConfig(Strict):
-    """A world: textured ground, obstacles standing on it, a tree line far around, sky.
-
-    Attributes:
-        seed: Seed of every surface's texture.
-        obstacles: The obstacles.
-        treeline_m: Radius of a textured tree line around the origin (None: open horizon).
-    """
-
-    version: Annotated[Literal[1], WholeNumber]
-    seed: int = Field(1, ge=0)
-    obstacles: list[ObstacleConfig] = Field(default_factory=list)
-    treeline_m: float | None = Field(60.0, gt=5.0, le=2000.0)
-
-
-class GeneratedWorldConfig(Strict):
-    """A world drawn by a seeded generator (see ``avoidd.sim.generators``).
-
-    Attributes:
-        kind: The generator.
-        seed: Its seed.
-        density: Obstacles per 100 square metres (pole forest, boxes).
-        gap_m: Width of the gap in a wall (wall with a gap).
-        length_m: Length of the course along the way to the goal.
-    """
-
-    kind: Literal["pole_forest", "wall_gap", "l_corridor", "dead_end", "boxes", "wall", "open"]
-    seed: int = Field(1, ge=0)
-    density: float = Field(3.0, gt=0.0, le=50.0)
-    gap_m: float = Field(4.0, gt=0.5, le=50.0)
-    length_m: float = Field(30.0, gt=5.0, le=500.0)
+__all__ = [
+    "ActionConfig",
+    "BoxConfig",
+    "CylinderConfig",
+    "GeneratedWorldConfig",
+    "MotionConfig",
+    "ObstacleConfig",
+    "PassConfig",
+    "PlacementConfig",
+    "ScenarioConfig",
+    "WallConfig",
+    "WorldConfig",
+    "load_scenario",
+    "load_world",
+]
 
 
 class PlacementConfig(Strict):

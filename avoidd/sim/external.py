@@ -534,7 +534,7 @@ class ExternalRun:
         north_m = float(position.x) + self.offset_ne_m[0]
         east_m = float(position.y) + self.offset_ne_m[1]
         altitude_m = -float(position.z) - self.home_up_m
-        edge_m = self.world.clearance_m(north_m, east_m, altitude_m) - self.radius_m
+        edge_m = self.world.edge_clearance_m(north_m, east_m, altitude_m, self.radius_m)
         loop = self.daemon.avoidance if self.daemon is not None else None
         decision = loop.last_decision if loop is not None else None
         pose = loop.last_pose if loop is not None else None

@@ -17,6 +17,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from avoidd.config import PerceptionConfig
 from avoidd.config.sim import ActionConfig, ScenarioConfig
 from avoidd.mavlink.messages import sectors_to_cm
 from avoidd.mavlink.track_history import TrackHistory
@@ -38,6 +39,8 @@ MAX_AGE_NS = 300_000_000
 OBSTACLE_DISTANCE_HZ = 15.0
 MAX_RANGE_M = 20.0
 TRACE_HZ = 10.0
+ORACLE_BAND_M = (PerceptionConfig().band.below_m, PerceptionConfig().band.above_m)
+"""Below and above the vehicle, the heights the oracle sees obstacles in (the daemon's band)."""
 
 RIGS = {
     "320x240": RectifiedRig(320, 240, 200.0, 200.0, 159.5, 119.5, 0.12),
@@ -139,7 +142,14 @@ class LockstepRun:
     def _oracle(self, state: VehicleState, t_ns: int) -> SectorScan:
         north, east, _ = (float(v) for v in state.position_m)
         distance = self.world.oracle_scan(
-            north, east, state.altitude_m, state.yaw_rad, self.covered, MAX_RANGE_M
+            north,
+            east,
+            state.altitude_m,
+            state.yaw_rad,
+            self.covered,
+            MAX_RANGE_M,
+            t_s=t_ns / 1e9,
+            band_m=ORACLE_BAND_M,
         )
         return SectorScan(t_ns, distance)
 
@@ -219,7 +229,7 @@ class LockstepRun:
         state = self.vehicle.state
         north, east, _ = (float(v) for v in state.position_m)
         radius = self.scenario.avoidance.vehicle_radius_m
-        clearance = self.world.clearance_m(north, east, state.altitude_m) - radius
+        clearance = self.world.edge_clearance_m(north, east, state.altitude_m, radius, t_s + STEP_S)
         speed = float(np.hypot(state.velocity_m_s[0], state.velocity_m_s[1]))
         tally.step(t_s, clearance, speed, self._decision.state)
         if step % self._every(TRACE_HZ) == 0:

@@ -83,7 +83,7 @@ class StereoPerception:
         roll_rad, pitch_rad = state.roll_pitch_rad()
         roll_deg, pitch_deg = math.degrees(roll_rad), math.degrees(pitch_rad)
         pair = self.renderer.render(
-            north, east, down, state.yaw_rad, roll_deg, pitch_deg, self._rng
+            north, east, down, state.yaw_rad, roll_deg, pitch_deg, self._rng, t_capture_ns / 1e9
         )
         pose = FramePose(roll_deg, pitch_deg, max(-down, 0.0), "simulator", "simulator")
         frame = StereoFrame(self._seq, t_capture_ns, pair.left, pair.right, None, pose)

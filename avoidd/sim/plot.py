@@ -19,10 +19,11 @@ def plot_run(run: LockstepRun, summary: Summary, path: Path) -> None:
     from matplotlib.patches import Circle, Polygon
 
     figure, axes = plt.subplots(figsize=(7, 7), dpi=110)
-    for obstacle in run.world.obstacles:
+    for obstacle in run.world.obstacles:  # where they stand at the start
+        shade = "0.25" if obstacle.bottom_m == 0.0 else "0.6"  # above the ground: lighter
         if isinstance(obstacle, SimCylinder):
             axes.add_patch(
-                Circle((obstacle.east_m, obstacle.north_m), obstacle.radius_m, color="0.25")
+                Circle((obstacle.east_m, obstacle.north_m), obstacle.radius_m, color=shade)
             )
         elif isinstance(obstacle, SimBox):
             c, s = math.cos(obstacle.yaw_rad), math.sin(obstacle.yaw_rad)
@@ -35,7 +36,7 @@ def plot_run(run: LockstepRun, summary: Summary, path: Path) -> None:
                         obstacle.north_m + along * c - across * s,
                     )
                 )
-            axes.add_patch(Polygon(corners, closed=True, color="0.25"))
+            axes.add_patch(Polygon(corners, closed=True, color=shade))
     east = [r.east_m for r in run.rows]
     north = [r.north_m for r in run.rows]
     speed = [r.speed_m_s for r in run.rows]

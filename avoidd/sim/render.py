@@ -4,90 +4,48 @@ Every pixel's ray is intersected analytically with the ground, the tree line and
 screen window each obstacle covers, with that obstacle (slabs for a yawed box, a quadratic for
 a cylinder): depth is exact, and the work per obstacle is the size it has on screen.
 
-Texture is looked up rather than computed: one periodic, band-limited noise pattern (a
-``1/f`` spectrum, like bark, concrete or grass from afar) is prepared once as a mip pyramid
-built in the frequency domain, so every level is exactly periodic and free of aliasing. Each
-surface shows it at its own offset, in its own coordinates in metres; each pixel reads the two
-levels around its footprint on the surface (trilinear, through ``cv2.remap``), so both views
-see the same pattern at every distance, as a real camera sees a real surface. Untextured
-surfaces get a flat shade (the pipeline's texture gate must cope with them).
+Obstacles span their own heights (a bar above the ground shows its underside to a camera
+below it), and moving ones are drawn where they are at the frame's time. The hits are shaded
+by :mod:`avoidd.sim.shading` (texture by each surface's level, light, sky, noise).
 
 Measured by ``avoidd bench --sim-render`` (see ``docs/simulation.md``).
 """
 
 from __future__ import annotations
 
-import functools
 import math
-from collections.abc import Callable
-from dataclasses import dataclass
 from typing import Any
 
-import cv2
 import numpy as np
 import numpy.typing as npt
 
+from avoidd.config.sim_world import TextureLevel
 from avoidd.perception.frames import camera_to_level
+from avoidd.sim.shading import SKY_ID, Hits, Shader, SurfaceTable
 from avoidd.sim.world import SimBox, SimCylinder, World
 from avoidd.types import FloatArray, GroundTruth, Image, Mount, RectifiedRig
+
+__all__ = [
+    "FIRST_OBSTACLE_ID",
+    "GROUND_ID",
+    "SKY_ID",
+    "RenderedStereo",
+    "StereoRenderer",
+    "camera_pose",
+]
 
 AnyFloat = npt.NDArray[np.floating[Any]]
 AnyArray = npt.NDArray[Any]
 
-SKY_ID = 0
 GROUND_ID = 1
 TREELINE_ID = 2
 FIRST_OBSTACLE_ID = 3
 
-TEXEL_M = 0.004
-"""Size of one texel of the finest level."""
-_TEXTURE_SIZE = 2048
 _TREELINE_HEIGHT_M = 14.0
 _NEAR_M = 0.05
-_REMAP_ROW = 1024
 _NOISE_FIELDS = 6
 _SUN_NED = np.array([-0.45, -0.35, 0.82]) / np.linalg.norm([0.45, 0.35, 0.82])
 """Direction the sunlight travels (down, from the north-east)."""
-
-
-@functools.lru_cache(maxsize=1)
-def texture_pyramid() -> tuple[npt.NDArray[np.float32], ...]:
-    """The noise pattern's mip levels, finest first, values around 0.5 (periodic in both axes).
-
-    Level ``k`` holds the spectrum's lowest ``size / 2**k`` frequencies, so sampling it where a
-    pixel covers ``2**k`` texels shows nothing finer than the pixel.
-    """
-    size = _TEXTURE_SIZE
-    rng = np.random.default_rng(20260101)
-    fy = np.fft.fftfreq(size)[:, None]
-    fx = np.fft.fftfreq(size)[None, :]
-    radius = np.hypot(fx, fy)
-    amplitude = np.where(radius > 0, 1.0 / np.maximum(radius, 1.0 / size), 0.0)
-    spectrum = amplitude * np.exp(2j * np.pi * rng.random((size, size)))
-    levels: list[npt.NDArray[np.float32]] = []
-    scale = 0.0
-    n = size
-    while n >= 8:
-        half = n // 2
-        # The lowest n x n frequencies (fft order: positive first, then negative).
-        keep = np.concatenate([np.arange(half), np.arange(size - half, size)])
-        block = spectrum[np.ix_(keep, keep)]
-        pattern = np.real(np.fft.ifft2(block)) * (n * n) / (size * size)
-        if not levels:
-            scale = 0.22 / float(np.std(pattern))
-        levels.append(np.asarray(0.5 + scale * pattern, dtype=np.float32))
-        n //= 2
-    return tuple(levels)
-
-
-@dataclass(frozen=True)
-class _SurfaceTable:
-    """Per surface id: offset of its texture (texels), albedo, 1 where untextured (flat)."""
-
-    offset_x: npt.NDArray[np.float32]
-    offset_y: npt.NDArray[np.float32]
-    albedo: npt.NDArray[np.float32]
-    flat: npt.NDArray[np.uint8]
 
 
 class RenderedStereo:
@@ -123,40 +81,6 @@ def camera_pose(
     return rotation, centre
 
 
-class _Hits:
-    """Per-pixel nearest hit so far: depth, surface, surface coordinates, shading terms."""
-
-    def __init__(self, shape: tuple[int, int]) -> None:
-        self.t = np.full(shape, np.inf, dtype=np.float32)
-        self.ids = np.zeros(shape, dtype=np.int16)
-        self.s = np.zeros(shape, dtype=np.float32)
-        self.u = np.zeros(shape, dtype=np.float32)
-        self.cos = np.ones(shape, dtype=np.float32)
-        self.light = np.ones(shape, dtype=np.float32)
-
-    def offer(
-        self,
-        window: tuple[slice, slice],
-        t: AnyFloat,
-        surface_id: int,
-        s: AnyFloat,
-        u: AnyFloat,
-        cos: AnyFloat,
-        light: AnyFloat | float,
-    ) -> None:
-        """Keep the offered hits (``inf`` where none) that are nearer than what is there."""
-        nearer = t < self.t[window]
-        if not nearer.any():
-            return
-        # copyto with a mask writes in one pass (indexing by the mask would gather first).
-        np.copyto(self.t[window], t, where=nearer)
-        np.copyto(self.ids[window], np.int16(surface_id), where=nearer)
-        np.copyto(self.s[window], s, where=nearer)
-        np.copyto(self.u[window], u, where=nearer)
-        np.copyto(self.cos[window], cos, where=nearer)
-        np.copyto(self.light[window], light, where=nearer)
-
-
 def _light(normal_ned: FloatArray) -> FloatArray:
     """Lambert shading with an ambient floor (normals: (..., 3))."""
     return np.asarray(0.55 + 0.45 * np.clip(normal_ned @ -_SUN_NED, 0.0, 1.0), dtype=np.float32)
@@ -181,21 +105,16 @@ class StereoRenderer:
         self.rig = rig
         self.mount = mount
         self.noise_std = noise_std
-        self._levels = texture_pyramid()
         v, u = np.mgrid[0 : rig.height, 0 : rig.width].astype(np.float64)
         self._optical = np.stack(
             [(u - rig.cx) / rig.fx, (v - rig.cy) / rig.fy, np.ones_like(u)], axis=-1
         )
         self._ray_length = np.linalg.norm(self._optical, axis=-1).astype(np.float32)
         rng = np.random.default_rng(world.seed)
-        count = FIRST_OBSTACLE_ID + len(world.obstacles)
         albedo = np.concatenate([[0.0, 0.5, 0.42], rng.uniform(0.45, 0.75, len(world.obstacles))])
-        self._surface_table = _SurfaceTable(
-            offset_x=rng.uniform(0, _TEXTURE_SIZE, count).astype(np.float32),
-            offset_y=rng.uniform(0, _TEXTURE_SIZE, count).astype(np.float32),
-            albedo=albedo.astype(np.float32),
-            flat=np.array([1, 0, 0] + [int(not o.textured) for o in world.obstacles], np.uint8),
-        )
+        levels: list[TextureLevel] = ["flat", "full", "full"]  # sky, ground, tree line
+        levels += [o.texture for o in world.obstacles]
+        self._shader = Shader(SurfaceTable.of(rng, albedo, levels), rig.fx)
         # A small bank of noise fields, drawn from per frame (drawing fresh Gaussian noise
         # for every pixel costs as much as rendering).
         noise_rng = np.random.default_rng(world.seed + 1)
@@ -213,6 +132,7 @@ class StereoRenderer:
         roll_deg: float = 0.0,
         pitch_deg: float = 0.0,
         rng: np.random.Generator | None = None,
+        t_s: float = 0.0,
     ) -> RenderedStereo:
         """Both views from a vehicle state (local NED, attitude in degrees).
 
@@ -224,6 +144,7 @@ class StereoRenderer:
             roll_deg: Roll, positive right side down.
             pitch_deg: Pitch, positive nose up.
             rng: Source of sensor noise (None: no noise).
+            t_s: The frame's time (where moving obstacles are).
 
         Returns:
             The pair and the left view's depth (``inf`` for sky) and surface ids.
@@ -232,25 +153,32 @@ class StereoRenderer:
             self.mount, north_m, east_m, down_m, yaw_rad, roll_deg, pitch_deg
         )
         rays = (self._optical @ rotation.T).astype(np.float32)
-        left = self._view(rays, rotation, centre)
+        obstacles = self.world.at(t_s)
+        left = self._view(rays, rotation, centre, obstacles)
         right_centre = centre + self.rig.baseline_m * rotation[:, 0]
-        right = self._view(rays, rotation, right_centre)
+        right = self._view(rays, rotation, right_centre, obstacles)
         noise: list[FloatArray | None] = [None, None]
         if rng is not None and self.noise_std > 0:
             picks = rng.choice(len(self._noise), size=2, replace=False)
             noise = [self._noise[int(i)] for i in picks]
         return RenderedStereo(
-            self._shade(left, rays, self._ray_length, noise[0]),
-            self._shade(right, rays, self._ray_length, noise[1]),
+            self._shader.shade(left, rays, self._ray_length, noise[0]),
+            self._shader.shade(right, rays, self._ray_length, noise[1]),
             left.t,
             left.ids,
         )
 
     # --- geometry --------------------------------------------------------------------------
 
-    def _view(self, rays: FloatArray, rotation: FloatArray, centre: FloatArray) -> _Hits:
+    def _view(
+        self,
+        rays: FloatArray,
+        rotation: FloatArray,
+        centre: FloatArray,
+        obstacles: tuple[SimBox | SimCylinder, ...],
+    ) -> Hits:
         shape = (self.rig.height, self.rig.width)
-        hits = _Hits(shape)
+        hits = Hits(shape)
         everywhere = (slice(None), slice(None))
         cn, ce, cd = (float(x) for x in centre)
         rn, re, rd = rays[..., 0], rays[..., 1], rays[..., 2]
@@ -276,11 +204,11 @@ class StereoRenderer:
                 centre,
                 (0.0, 0.0),
                 radius,
-                _TREELINE_HEIGHT_M,
+                (0.0, _TREELINE_HEIGHT_M),
                 TREELINE_ID,
                 inside=True,
             )
-        for index, obstacle in enumerate(self.world.obstacles):
+        for index, obstacle in enumerate(obstacles):
             window = self._window(obstacle, rotation, centre)
             if window is None:
                 continue
@@ -293,7 +221,7 @@ class StereoRenderer:
                     centre,
                     (obstacle.north_m, obstacle.east_m),
                     obstacle.radius_m,
-                    obstacle.height_m,
+                    (obstacle.bottom_m, obstacle.height_m),
                     surface_id,
                     inside=False,
                 )
@@ -338,7 +266,7 @@ class StereoRenderer:
                 (obstacle.north_m + a * half_n, obstacle.east_m + b * half_e, -h)
                 for a in (-1, 1)
                 for b in (-1, 1)
-                for h in (0.0, obstacle.height_m)
+                for h in (obstacle.bottom_m, obstacle.height_m)
             ]
         )
         return self._project(corners, rotation, centre)
@@ -365,13 +293,13 @@ class StereoRenderer:
 
     def _cylinder(
         self,
-        hits: _Hits,
+        hits: Hits,
         window: tuple[slice, slice],
         rays: FloatArray,
         centre: FloatArray,
         axis_ne: tuple[float, float],
         radius_m: float,
-        height_m: float,
+        extent_m: tuple[float, float],
         surface_id: int,
         inside: bool,
     ) -> None:
@@ -385,7 +313,7 @@ class StereoRenderer:
             root = np.sqrt(np.maximum(disc, 0.0))
             t = ((-b + root) if inside else (-b - root)) / a
         down = float(centre[2]) + t * rd
-        hit = (disc > 0) & (t > _NEAR_M) & (down <= 0.0) & (down >= -height_m)
+        hit = (disc > 0) & (t > _NEAR_M) & (down <= -extent_m[0]) & (down >= -extent_m[1])
         t = np.where(hit, t, np.inf).astype(np.float32)
         pn, pe = on + t * rn, oe + t * re
         with np.errstate(invalid="ignore"):
@@ -401,7 +329,7 @@ class StereoRenderer:
 
     def _box(
         self,
-        hits: _Hits,
+        hits: Hits,
         rays: FloatArray,
         rotation: FloatArray,
         centre: FloatArray,
@@ -422,6 +350,7 @@ class StereoRenderer:
         # The camera in the box frame: along its length (a), across it (c), down (d).
         pa, pc = on * co + oe * si, -on * si + oe * co
         half_a, half_c, height = box.half_length_m, box.half_width_m, box.height_m
+        bottom = -box.bottom_m
         for axis, plane, normal_ned in _facing_box_faces(pa, pc, od, box):
             corners = _face_corners_ned(box, axis, plane)
             window = self._project(corners, rotation, centre)
@@ -440,13 +369,13 @@ class StereoRenderer:
                     t = (plane - pa) / ra
                     s = pc + t * rc
                     u = od + t * rd
-                    inside = (np.abs(s) <= half_c) & (u <= 0.0) & (u >= -height)
+                    inside = (np.abs(s) <= half_c) & (u <= bottom) & (u >= -height)
                     toward = ra
                 elif axis == 1:
                     t = (plane - pc) / rc
                     s = pa + t * ra
                     u = od + t * rd
-                    inside = (np.abs(s) <= half_a) & (u <= 0.0) & (u >= -height)
+                    inside = (np.abs(s) <= half_a) & (u <= bottom) & (u >= -height)
                     toward = rc
                 else:
                     t = (plane - od) / rd
@@ -458,96 +387,6 @@ class StereoRenderer:
             cos = np.abs(toward) / self._ray_length[window]
             hits.offer(window, t, surface_id, s, u, cos, float(_light(normal_ned)))
 
-    # --- shading ---------------------------------------------------------------------------
-
-    def _shade(
-        self, hits: _Hits, rays: FloatArray, ray_length: FloatArray, noise: FloatArray | None
-    ) -> Image:
-        ids = hits.ids
-        gather = self._gatherer(ids)
-        surfaces = self._surface_table
-        # Every pixel is computed as if textured (sky and flat ones are overwritten after):
-        # whole-image arithmetic is cheaper than selecting the pixels first.
-        distance = hits.t * ray_length
-        with np.errstate(invalid="ignore", over="ignore"):
-            footprint_texels = distance / np.float32(self.rig.fx * TEXEL_M)
-            footprint_texels /= np.sqrt(np.maximum(hits.cos, np.float32(0.02)))
-        top = np.float32(len(self._levels) - 1.001)
-        lod = np.log2(np.clip(footprint_texels, 1.0, 2.0**top))
-        x = _wrap(hits.s * np.float32(1.0 / TEXEL_M) + gather(surfaces.offset_x))
-        y = _wrap(hits.u * np.float32(1.0 / TEXEL_M) + gather(surfaces.offset_y))
-        pattern = self._sample(x, y, lod)
-        lit = gather(surfaces.albedo) * hits.light
-        value = lit * (0.35 + 1.3 * pattern)
-        flat = gather(surfaces.flat) != 0
-        value = np.where(flat, 0.8 * lit, value)
-        sky = ids == SKY_ID
-        value = np.where(sky, 0.78 - 0.15 * rays[..., 2] / ray_length, value)
-        scaled = value * np.float32(255.0)
-        if noise is not None:
-            scaled += noise
-        return np.asarray(np.clip(np.rint(scaled), 0, 255), dtype=np.uint8)
-
-    def _gatherer(self, ids: npt.NDArray[np.int16]) -> Callable[[AnyArray], AnyArray]:
-        """Per-pixel lookup of a per-surface table by the pixels' surface ids.
-
-        With at most 256 surfaces the ids fit a byte and OpenCV's table lookup does it (a
-        fraction of NumPy's indexing by an int16 array); otherwise NumPy indexes.
-        """
-        if len(self._surface_table.albedo) > 256:
-            return lambda table: np.asarray(table[ids])
-        small = ids.astype(np.uint8)
-
-        def lookup(table: AnyArray) -> AnyArray:
-            padded = np.zeros(256, dtype=table.dtype)
-            padded[: len(table)] = table
-            return np.asarray(cv2.LUT(small, padded))
-
-        return lookup
-
-    def _sample(self, x: FloatArray, y: FloatArray, lod: FloatArray) -> FloatArray:
-        """Trilinear lookup of the pattern at texel coordinates (finest level) and a level."""
-        shape = x.shape
-        base = np.floor(lod).astype(np.int8).ravel()
-        # One stable (radix) sort puts each level's pixels together.
-        order = np.argsort(base, kind="stable")
-        counts = np.bincount(base, minlength=len(self._levels))
-        xs, ys = x.ravel()[order], y.ravel()[order]
-        frac = (lod.ravel() - base)[order].astype(np.float32)
-        sorted_out = np.empty(xs.shape, dtype=np.float32)
-        start = 0
-        for level, count in enumerate(counts.tolist()):
-            if not count:
-                continue
-            part = slice(start, start + count)
-            fine = self._lookup(level, xs[part], ys[part])
-            coarse = self._lookup(level + 1, xs[part], ys[part])
-            w = frac[part]
-            sorted_out[part] = fine + (coarse - fine) * w
-            start += count
-        out = np.empty(xs.shape, dtype=np.float32)
-        out[order] = sorted_out
-        return out.reshape(shape)
-
-    def _lookup(self, level: int, x: FloatArray, y: FloatArray) -> FloatArray:
-        image = self._levels[level]
-        scale = np.float32(0.5**level)
-        count = x.size
-        # remap wants a 2-D map under 32767 on a side: lay the points out in rows.
-        rows = -(-count // _REMAP_ROW)
-        map_x = np.zeros(rows * _REMAP_ROW, dtype=np.float32)
-        map_y = np.zeros(rows * _REMAP_ROW, dtype=np.float32)
-        np.multiply(x, scale, out=map_x[:count])
-        np.multiply(y, scale, out=map_y[:count])
-        sampled = cv2.remap(
-            image,
-            map_x.reshape(rows, _REMAP_ROW),
-            map_y.reshape(rows, _REMAP_ROW),
-            cv2.INTER_LINEAR,
-            borderMode=cv2.BORDER_WRAP,
-        )
-        return np.asarray(sampled, dtype=np.float32).ravel()[:count]
-
 
 def _facing_box_faces(
     pa: float, pc: float, od: float, box: SimBox
@@ -556,8 +395,8 @@ def _facing_box_faces(
 
     Returns:
         Per face: its axis (0 along the length, 1 across, 2 down), the plane's coordinate on
-        that axis, and its outward normal in NED (the bottom's lit as the top, as it never
-        shows above the ground).
+        that axis, and its outward normal in NED (the underside faces down, away from the sun:
+        a camera sees it under a bar above the ground).
     """
     co, si = math.cos(box.yaw_rad), math.sin(box.yaw_rad)
     faces: list[tuple[int, float, FloatArray]] = []
@@ -571,31 +410,22 @@ def _facing_box_faces(
         faces.append((1, -box.half_width_m, np.array([si, -co, 0.0])))
     if od < -box.height_m:
         faces.append((2, -box.height_m, np.array([0.0, 0.0, -1.0])))
-    elif od > 0.0:
-        faces.append((2, 0.0, np.array([0.0, 0.0, -1.0])))
+    elif od > -box.bottom_m:
+        faces.append((2, -box.bottom_m, np.array([0.0, 0.0, 1.0])))
     return faces
 
 
 def _face_corners_ned(box: SimBox, axis: int, plane: float) -> FloatArray:
     """The four corners (NED) of the box face on ``axis`` at ``plane``."""
     half_a, half_c, height = box.half_length_m, box.half_width_m, box.height_m
+    bottom = -box.bottom_m
     if axis == 0:
-        local = [(plane, c, d) for c in (-half_c, half_c) for d in (0.0, -height)]
+        local = [(plane, c, d) for c in (-half_c, half_c) for d in (bottom, -height)]
     elif axis == 1:
-        local = [(a, plane, d) for a in (-half_a, half_a) for d in (0.0, -height)]
+        local = [(a, plane, d) for a in (-half_a, half_a) for d in (bottom, -height)]
     else:
         local = [(a, c, plane) for a in (-half_a, half_a) for c in (-half_c, half_c)]
     co, si = math.cos(box.yaw_rad), math.sin(box.yaw_rad)
     return np.array(
         [(box.north_m + a * co - c * si, box.east_m + a * si + c * co, d) for a, c, d in local]
     )
-
-
-def _wrap(texels: FloatArray) -> FloatArray:
-    """Texel coordinates brought into one period of the pattern.
-
-    remap's fixed point needs coordinates below 32767; its border wrap then handles the last
-    texel.
-    """
-    period = np.float32(_TEXTURE_SIZE)
-    return np.asarray(texels - period * np.floor(texels * (1.0 / period)), dtype=np.float32)

@@ -1,8 +1,11 @@
-"""A simulated world: boxes, walls and cylinders on flat ground, with exact 2-D geometry.
+"""A simulated world: obstacles on flat ground, and its exact geometry at any time.
 
-The frame is the autopilot's local frame: north, east, down, the ground at down = 0. Obstacles
-stand on the ground. Collisions, clearance and the oracle perception (exact distance per scan
-bin) are computed on their footprints at the vehicle's altitude.
+The frame is the autopilot's local frame: north, east, down, the ground at down = 0. The
+obstacles (:mod:`avoidd.sim.obstacles`) are upright prisms with a bottom and a top; moving ones
+are wherever they are at the time asked. Collisions and clearance are measured in 3-D between
+the vehicle (an upright cylinder of its radius, ``VEHICLE_HEIGHT_M`` tall) and each obstacle;
+the oracle perception (exact distance per scan bin) takes the obstacles within a height band
+round the vehicle, as the daemon's perception does.
 """
 
 from __future__ import annotations
@@ -13,73 +16,25 @@ from dataclasses import dataclass
 import numpy as np
 import numpy.typing as npt
 
-from avoidd.config.sim import BoxConfig, CylinderConfig, WallConfig, WorldConfig
+from avoidd.config.sim import WorldConfig
+from avoidd.sim.obstacles import (
+    Obstacle,
+    SimBox,
+    SimCylinder,
+    footprint_distance_m,
+    from_config,
+    placed,
+    ray_hits,
+    vertical_gap_m,
+)
 from avoidd.types import SECTOR_COUNT, SECTOR_WIDTH_DEG
+
+__all__ = ["VEHICLE_HEIGHT_M", "Obstacle", "SimBox", "SimCylinder", "World"]
 
 Array = npt.NDArray[np.float64]
 
-
-@dataclass(frozen=True)
-class SimBox:
-    """A (possibly yawed) box standing on the ground.
-
-    Attributes:
-        north_m: Centre of its footprint.
-        east_m: Centre of its footprint.
-        half_length_m: Half its size along ``yaw_rad``.
-        half_width_m: Half its size across.
-        height_m: Its top above the ground.
-        yaw_rad: Direction of its length, from north, clockwise.
-        textured: Whether its faces carry texture (else a flat colour).
-    """
-
-    north_m: float
-    east_m: float
-    half_length_m: float
-    half_width_m: float
-    height_m: float
-    yaw_rad: float
-    textured: bool = True
-
-
-@dataclass(frozen=True)
-class SimCylinder:
-    """A vertical cylinder standing on the ground."""
-
-    north_m: float
-    east_m: float
-    radius_m: float
-    height_m: float
-    textured: bool = True
-
-
-Obstacle = SimBox | SimCylinder
-
-
-def _from_config(item: BoxConfig | WallConfig | CylinderConfig) -> Obstacle:
-    if isinstance(item, BoxConfig):
-        return SimBox(
-            item.north_m,
-            item.east_m,
-            item.length_m / 2,
-            item.width_m / 2,
-            item.height_m,
-            math.radians(item.yaw_deg),
-            item.textured,
-        )
-    if isinstance(item, WallConfig):
-        (n0, e0), (n1, e1) = item.start_ne_m, item.end_ne_m
-        length = math.hypot(n1 - n0, e1 - e0)
-        return SimBox(
-            (n0 + n1) / 2,
-            (e0 + e1) / 2,
-            length / 2,
-            item.thickness_m / 2,
-            item.height_m,
-            math.atan2(e1 - e0, n1 - n0),
-            item.textured,
-        )
-    return SimCylinder(item.north_m, item.east_m, item.diameter_m / 2, item.height_m, item.textured)
+VEHICLE_HEIGHT_M = 0.3
+"""The vehicle's height, centred on its altitude, for 3-D collisions."""
 
 
 @dataclass(frozen=True)
@@ -93,80 +48,90 @@ class World:
     @classmethod
     def from_config(cls, config: WorldConfig) -> World:
         """The world a world file describes."""
-        return cls(tuple(_from_config(o) for o in config.obstacles), config.seed, config.treeline_m)
+        return cls(tuple(from_config(o) for o in config.obstacles), config.seed, config.treeline_m)
 
-    def _relevant(self, altitude_m: float) -> list[Obstacle]:
-        return [o for o in self.obstacles if o.height_m > altitude_m]
+    @property
+    def moves(self) -> bool:
+        """Whether any obstacle moves."""
+        return any(o.motion is not None for o in self.obstacles)
 
-    def clearance_m(self, north_m: float, east_m: float, altitude_m: float) -> float:
+    def at(self, t_s: float) -> tuple[Obstacle, ...]:
+        """The obstacles where they are at ``t_s`` (in the same order)."""
+        if not self.moves:
+            return self.obstacles
+        return tuple(placed(o, t_s) for o in self.obstacles)
+
+    def _within(self, low_m: float, high_m: float, t_s: float) -> list[Obstacle]:
+        """The obstacles at ``t_s`` reaching into the heights ``low_m``..``high_m``."""
+        return [o for o in self.at(t_s) if o.height_m > low_m and o.bottom_m <= high_m]
+
+    def clearance_m(
+        self, north_m: float, east_m: float, altitude_m: float, t_s: float = 0.0
+    ) -> float:
         """Horizontal distance from a point to the nearest obstacle reaching its altitude."""
         nearest = math.inf
-        for obstacle in self._relevant(altitude_m):
-            dn, de = north_m - obstacle.north_m, east_m - obstacle.east_m
-            if isinstance(obstacle, SimCylinder):
-                distance = math.hypot(dn, de) - obstacle.radius_m
+        for obstacle in self._within(altitude_m, altitude_m, t_s):
+            nearest = min(nearest, footprint_distance_m(obstacle, north_m, east_m))
+        return nearest
+
+    def edge_clearance_m(
+        self,
+        north_m: float,
+        east_m: float,
+        altitude_m: float,
+        radius_m: float,
+        t_s: float = 0.0,
+        height_m: float = VEHICLE_HEIGHT_M,
+    ) -> float:
+        """Distance in 3-D from the vehicle's edge to the nearest obstacle (negative: inside).
+
+        The vehicle is an upright cylinder of ``radius_m`` and ``height_m`` centred at the
+        point; an obstacle above or below it is as far as its vertical and horizontal gaps
+        together make (a bar 0.2 m above the vehicle's top is 0.2 m away, whatever its
+        footprint).
+        """
+        low, high = altitude_m - height_m / 2, altitude_m + height_m / 2
+        nearest = math.inf
+        for obstacle in self.at(t_s):
+            across = footprint_distance_m(obstacle, north_m, east_m) - radius_m
+            up = vertical_gap_m(obstacle, low, high)
+            if up == 0.0:
+                distance = across
+            elif across <= 0.0:
+                distance = up
             else:
-                c, s = math.cos(obstacle.yaw_rad), math.sin(obstacle.yaw_rad)
-                along, across = dn * c + de * s, -dn * s + de * c
-                out_a = max(abs(along) - obstacle.half_length_m, 0.0)
-                out_c = max(abs(across) - obstacle.half_width_m, 0.0)
-                distance = math.hypot(out_a, out_c)
-                if out_a == 0.0 and out_c == 0.0:  # inside: negative depth
-                    distance = -min(
-                        obstacle.half_length_m - abs(along), obstacle.half_width_m - abs(across)
-                    )
+                distance = math.hypot(across, up)
             nearest = min(nearest, distance)
         return nearest
 
     def ray_distances(
-        self, north_m: float, east_m: float, altitude_m: float, headings_rad: Array
+        self,
+        north_m: float,
+        east_m: float,
+        altitude_m: float,
+        headings_rad: Array,
+        t_s: float = 0.0,
+        band_m: tuple[float, float] = (0.0, 0.0),
     ) -> Array:
         """Distance along each horizontal ray to the first obstacle (``inf`` if none).
 
         Args:
             north_m: Ray origin.
             east_m: Ray origin.
-            altitude_m: Height of the rays; only obstacles reaching it count.
+            altitude_m: Height of the rays.
             headings_rad: (K,) ray directions, from north, clockwise.
+            t_s: The time (where moving obstacles are).
+            band_m: How far below and above the rays an obstacle may reach into and count
+                (its horizontal distance is the reading; (0, 0): only obstacles the rays meet).
 
         Returns:
             (K,) distances.
         """
         best = np.full(headings_rad.shape, np.inf)
         dn_ray, de_ray = np.cos(headings_rad), np.sin(headings_rad)
-        for obstacle in self._relevant(altitude_m):
-            on, oe = north_m - obstacle.north_m, east_m - obstacle.east_m
-            if isinstance(obstacle, SimCylinder):
-                b = on * dn_ray + oe * de_ray
-                c = on * on + oe * oe - obstacle.radius_m**2
-                disc = b * b - c
-                with np.errstate(invalid="ignore"):
-                    t = -b - np.sqrt(disc)
-                hit = (disc >= 0) & (t >= 0)
-                t = np.where(c < 0, 0.0, t)  # inside: at once
-                hit |= c < 0
-            else:
-                co, si = math.cos(obstacle.yaw_rad), math.sin(obstacle.yaw_rad)
-                pa, pc = on * co + oe * si, -on * si + oe * co
-                da, dc = dn_ray * co + de_ray * si, -dn_ray * si + de_ray * co
-                with np.errstate(divide="ignore", invalid="ignore"):
-                    ta = np.stack(
-                        [(-obstacle.half_length_m - pa) / da, (obstacle.half_length_m - pa) / da]
-                    )
-                    tc = np.stack(
-                        [(-obstacle.half_width_m - pc) / dc, (obstacle.half_width_m - pc) / dc]
-                    )
-                # A ray parallel to a slab is inside it (or never) whatever t.
-                inside_a = abs(pa) <= obstacle.half_length_m
-                inside_c = abs(pc) <= obstacle.half_width_m
-                low_a = np.where(da == 0, -np.inf if inside_a else np.inf, ta.min(axis=0))
-                high_a = np.where(da == 0, np.inf if inside_a else -np.inf, ta.max(axis=0))
-                low_c = np.where(dc == 0, -np.inf if inside_c else np.inf, tc.min(axis=0))
-                high_c = np.where(dc == 0, np.inf if inside_c else -np.inf, tc.max(axis=0))
-                t_in = np.maximum(low_a, low_c)
-                t_out = np.minimum(high_a, high_c)
-                hit = (t_in <= t_out) & (t_out >= 0)
-                t = np.maximum(t_in, 0.0)
+        below, above = band_m
+        for obstacle in self._within(altitude_m - below, altitude_m + above, t_s):
+            hit, t = ray_hits(obstacle, north_m, east_m, dn_ray, de_ray)
             best = np.where(hit, np.minimum(best, t), best)
         return best
 
@@ -179,22 +144,27 @@ class World:
         covered: npt.NDArray[np.bool_],
         max_range_m: float,
         rays_per_bin: int = 5,
+        t_s: float = 0.0,
+        band_m: tuple[float, float] = (0.0, 0.0),
     ) -> npt.NDArray[np.float32]:
         """Exact 72-bin scan (body bins): nearest obstacle per bin, ``inf`` clear, NaN unseen.
 
         Args:
             north_m: Vehicle position.
             east_m: Vehicle position.
-            altitude_m: Vehicle altitude (the obstacles reaching it count).
+            altitude_m: Vehicle altitude.
             yaw_rad: Vehicle heading.
             covered: (72,) bins the cameras see.
             max_range_m: Beyond this a bin is clear.
             rays_per_bin: Rays cast across each bin.
+            t_s: The time (where moving obstacles are).
+            band_m: Heights below and above the vehicle within which obstacles count (the
+                perception's height band).
         """
         offsets = (np.arange(rays_per_bin) + 0.5) / rays_per_bin - 0.5
         body = (np.arange(SECTOR_COUNT)[:, None] + offsets[None, :]) * SECTOR_WIDTH_DEG
         headings = yaw_rad + np.radians(body.ravel())
-        distance = self.ray_distances(north_m, east_m, altitude_m, headings)
+        distance = self.ray_distances(north_m, east_m, altitude_m, headings, t_s, band_m)
         nearest = distance.reshape(SECTOR_COUNT, rays_per_bin).min(axis=1)
         scan = np.where(nearest < max_range_m, nearest, np.inf).astype(np.float32)
         scan[~covered] = np.nan
