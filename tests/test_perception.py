@@ -364,12 +364,20 @@ def _scan(t_ms: int, readings: dict[int, float]) -> SectorScan:
 
 def test_new_obstacle_needs_k_of_n_frames_and_is_unknown_until_then() -> None:
     f = SectorFilter(TemporalConfig(confirm_frames=2, window_frames=3, hold_ms=150))
+    # The first frame can confirm no obstacle, so it vouches for nothing: clear bins beside
+    # an unconfirmed one would tell the autopilot the way is free.
     first = f.update(_scan(0, {5: 4.0}))
-    assert np.isnan(first.distance_m[5]) and first.distance_m[6] == np.inf
-    assert f.update(_scan(100, {5: 3.9})).distance_m[5] == pytest.approx(3.9)
+    assert f.warming_up and np.isnan(first.distance_m).all()
+    second = f.update(_scan(100, {5: 3.9}))
+    assert not f.warming_up
+    assert second.distance_m[5] == pytest.approx(3.9) and second.distance_m[6] == np.inf
     # A single-frame speckle elsewhere never gets out.
     assert np.isnan(f.update(_scan(200, {5: 3.8, 40: 1.0})).distance_m[40])
     assert f.update(_scan(300, {5: 3.7})).distance_m[40] == np.inf
+    # A reset (the recording starts over) begins the warm-up again.
+    f.reset()
+    assert np.isnan(f.update(_scan(400, {5: 3.6})).distance_m).all()
+    assert f.update(_scan(500, {5: 3.5})).distance_m[5] == pytest.approx(3.5)
 
 
 def test_confirmed_obstacle_attacks_at_once_and_holds_for_a_bounded_time() -> None:

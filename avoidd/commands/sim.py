@@ -142,12 +142,12 @@ def _report(summary: Any, out_json: Path | None, report: dict[str, Any] | None =
 def _run_realtime(args: argparse.Namespace) -> int:
     import asyncio
 
-    from avoidd.config.sim import load_scenario
     from avoidd.sim.realtime import RealtimeRun
 
-    if args.seed is not None:
-        raise ConfigError(["--seed: a real-time run takes the scenario's own seed"])
-    run = RealtimeRun(load_scenario(args.scenario))
+    problems = (
+        [] if args.seed is None else ["--seed: a real-time run takes the scenario's own seed"]
+    )
+    run = RealtimeRun(_scenario_noting(args.scenario, problems, "a real-time run"))
     summary = asyncio.run(run.run(_free_udp_port()))
     return _report(summary, None if args.out is None else args.out / "summary.json")
 
@@ -221,18 +221,26 @@ def _executable(path: Path) -> bool:
     return path.is_file() and os.access(path, os.X_OK)
 
 
-def _scenario_noting(path: Path, problems: list[str]) -> ScenarioConfig:
+def _scenario_noting(path: Path, problems: list[str], run: str = "a SITL run") -> ScenarioConfig:
     """Load a scenario; with any problem (its own or earlier ones) raise them all at once.
 
+    Args:
+        path: The scenario file.
+        problems: What is wrong already.
+        run: What runs it, for what only the lockstep simulator plays.
+
     Raises:
-        ConfigError: The scenario is invalid, or ``problems`` is not empty.
+        ConfigError: The scenario is invalid or asks what only the lockstep simulator plays,
+            or ``problems`` is not empty.
     """
     from avoidd.config.sim import load_scenario
+    from avoidd.sim.scenario import lockstep_only
 
     try:
         scenario = load_scenario(path)
     except ConfigError as exc:
         raise ConfigError(problems + exc.lines) from None
+    problems = problems + lockstep_only(scenario, run)
     if problems:
         raise ConfigError(problems)
     return scenario

@@ -20,7 +20,12 @@ class SectorFilter:
       never delayed);
     - a confirmed obstacle that vanishes (the bin reads clear or unknown) keeps its last
       distance for at most ``hold_ms`` after the frame that measured it; the reading keeps its
-      own capture time, so the sender's age limit applies to it as to any other.
+      own capture time, so the sender's age limit applies to it as to any other;
+    - until it has seen ``confirm_frames`` frames since it started or was reset (a recording
+      that starts over), every bin is unknown: no obstacle can be confirmed yet, and the bins
+      measured clear beside one would tell the autopilot the way is free (ArduPilot reads an
+      unknown bin as nothing; the first message after a start or a loop had the obstacle's
+      bins unknown between clear ones).
 
     Args:
         config: The filter parameters.
@@ -34,12 +39,20 @@ class SectorFilter:
         self._distance = np.full(SECTOR_COUNT, np.nan, dtype=np.float32)
         self._points = np.full((SECTOR_COUNT, 3), np.nan, dtype=np.float32)
         self._t_ns = np.zeros(SECTOR_COUNT, dtype=np.int64)
+        self._frames = 0
+        """Frames seen since the start or the last reset (counted up to ``confirm_frames``)."""
+
+    @property
+    def warming_up(self) -> bool:
+        """Whether too few frames were seen to confirm an obstacle (every bin is unknown)."""
+        return self._frames < self._k
 
     def reset(self) -> None:
-        """Forget every bin (the source restarted)."""
+        """Forget every bin (the source restarted): the warm-up starts again."""
         self._seen[:] = False
         self._distance[:] = np.nan
         self._points[:] = np.nan
+        self._frames = 0
 
     def update(self, scan: SectorScan) -> SectorScan:
         """Filter the newest scan of the head.
@@ -82,4 +95,8 @@ class SectorFilter:
         expired = ~confirmed & ~held
         self._distance[expired] = np.nan
         self._points[expired] = np.nan
+        self._frames = min(self._frames + 1, self._k)
+        if self._frames < self._k:
+            distance[:] = np.nan
+            points[:] = np.nan
         return SectorScan(t_ns, distance, points, times)

@@ -10,15 +10,16 @@ avoidd's parts are the daemon's own: the gate, the planner, the scan merge; the 
 
 from __future__ import annotations
 
+import functools
 import math
 import time
-from collections.abc import Callable
 from dataclasses import dataclass
 
 import numpy as np
+import numpy.typing as npt
 
 from avoidd.config import PerceptionConfig
-from avoidd.config.sim import ActionConfig, ScenarioConfig
+from avoidd.config.sim import ActionConfig, CameraConfig, ScenarioConfig
 from avoidd.mavlink.messages import sectors_to_cm
 from avoidd.mavlink.track_history import TrackHistory
 from avoidd.perception.sectors import covered_bins
@@ -26,11 +27,14 @@ from avoidd.planner.core import Decision, Goal
 from avoidd.planner.cycle import AutopilotState, CycleInput, PlanningCycle
 from avoidd.planner.gating import Gate
 from avoidd.sim.flight import SimAutopilot
+from avoidd.sim.heads import RIGS, Perceive, SimHead, fresh_merged, mount_of, rig_for
 from avoidd.sim.perception import StereoPerception
 from avoidd.sim.summary import Summary, Tally, judge
 from avoidd.sim.vehicle import Multirotor, VehicleState
 from avoidd.sim.world import World
-from avoidd.types import LocalPosition, Mount, RectifiedRig, SectorScan
+from avoidd.types import LocalPosition, SectorScan
+
+__all__ = ["MAX_RANGE_M", "RIGS", "STEP_S", "LockstepRun", "Row"]
 
 STEP_S = 0.01
 LATENCY_S = 0.1
@@ -41,15 +45,6 @@ MAX_RANGE_M = 20.0
 TRACE_HZ = 10.0
 ORACLE_BAND_M = (PerceptionConfig().band.below_m, PerceptionConfig().band.above_m)
 """Below and above the vehicle, the heights the oracle sees obstacles in (the daemon's band)."""
-
-RIGS = {
-    "320x240": RectifiedRig(320, 240, 200.0, 200.0, 159.5, 119.5, 0.12),
-    "640x480": RectifiedRig(640, 480, 400.0, 400.0, 319.5, 239.5, 0.12),
-}
-"""The simulated head's rectified rig (a 77 degree field of view, 12 cm baseline)."""
-
-Perceive = Callable[[VehicleState, int], SectorScan]
-"""Produces the head's (filtered) scan for the vehicle's state at a capture time."""
 
 
 @dataclass
@@ -79,8 +74,7 @@ class LockstepRun:
         scenario: The scenario.
         world: Its world.
         goal: Where to fly (the scenario's, or the generator's).
-        seed: Seed of the sensor noise.
-        perceive: Makes the head's scan; by default the exact (oracle) distances.
+        seed: Seed of the sensor noise (a second head's is one more, and so on).
         world_kind: The generator that drew the world (``file``: a world file), for reports.
     """
 
@@ -90,7 +84,6 @@ class LockstepRun:
         world: World,
         goal: Goal,
         seed: int = 0,
-        perceive: Perceive | None = None,
         world_kind: str = "file",
     ) -> None:
         self.scenario = scenario
@@ -99,9 +92,6 @@ class LockstepRun:
         self.goal: Goal | None = goal
         self.seed = seed
         avoidance = scenario.avoidance
-        self.rig = RIGS[scenario.resolution]
-        self.mount = Mount()
-        self.covered = covered_bins(self.rig, self.mount)
         self.cycle = PlanningCycle(avoidance, MAX_RANGE_M)
         self.planner = self.cycle.planner
         self.cycle.new_goal()  # the goal is given before the first cycle
@@ -119,14 +109,10 @@ class LockstepRun:
             ),
             wind_m_s=scenario.wind_m_s,
         )
-        if perceive is None and scenario.perception == "stereo":
-            perceive = StereoPerception(world, self.rig, self.mount, MAX_RANGE_M, seed)
-        self.perceive = perceive or self._oracle
-        self.camera_on = True
+        self.heads = [self._head(camera, seed + k) for k, camera in enumerate(scenario.cameras)]
         self.rows: list[Row] = []
-        self._pending: list[tuple[int, SectorScan, float]] = []
         self._latest: tuple[SectorScan, float] | None = None
-        """The newest scan avoidd has, with the yaw at its capture."""
+        """The heads' fresh scans merged, with the yaw at the newest capture (None: stale)."""
         self._track = TrackHistory()
         self.inputs: list[CycleInput] = []
         """Every planning cycle's input, when ``record_inputs``."""
@@ -136,17 +122,29 @@ class LockstepRun:
         self._setpoint: list[float] | None = None
         self._tally = Tally(Summary(scenario.name, seed, scenario.perception), STEP_S)
         self._timeline: list[ActionConfig] = []
+        self._triggers: list[ActionConfig] = []
+        self._flown_m = 0.0
 
     # --- perception ------------------------------------------------------------------------
 
-    def _oracle(self, state: VehicleState, t_ns: int) -> SectorScan:
+    def _head(self, camera: CameraConfig, seed: int) -> SimHead:
+        """A camera's head: its scans rendered and run through the pipeline, or exact."""
+        rig, mount = rig_for(self.scenario.resolution, camera.hfov_deg), mount_of(camera)
+        perceive: Perceive
+        if self.scenario.perception == "stereo":
+            perceive = StereoPerception(self.world, rig, mount, MAX_RANGE_M, seed)
+        else:
+            perceive = functools.partial(self._oracle, covered_bins(rig, mount))
+        return SimHead(camera.name, rig, mount, perceive)
+
+    def _oracle(self, covered: npt.NDArray[np.bool_], state: VehicleState, t_ns: int) -> SectorScan:
         north, east, _ = (float(v) for v in state.position_m)
         distance = self.world.oracle_scan(
             north,
             east,
             state.altitude_m,
             state.yaw_rad,
-            self.covered,
+            covered,
             MAX_RANGE_M,
             t_s=t_ns / 1e9,
             band_m=ORACLE_BAND_M,
@@ -162,11 +160,9 @@ class LockstepRun:
         return LocalPosition(t_ns, north, east, down, vn, ve, float(state.velocity_m_s[2]))
 
     def fresh_scan(self, now_ns: int) -> SectorScan | None:
-        """The newest scan avoidd has, if it is younger than the age limit."""
-        if self._latest is None:
-            return None
-        scan, _ = self._latest
-        return scan if now_ns - scan.t_capture_ns <= MAX_AGE_NS else None
+        """The fresh heads' newest scans merged (None: no head is fresh)."""
+        self._latest = fresh_merged(self.heads, now_ns, MAX_AGE_NS)
+        return None if self._latest is None else self._latest[0]
 
     # --- the loop --------------------------------------------------------------------------
 
@@ -186,7 +182,10 @@ class LockstepRun:
         # - 0.1 m, as clearance here is measured from the vehicle's edge).
         summary.clearance_target_m = round(avoidance.margin_m - 0.1, 4)
         self._tally = Tally(summary, STEP_S)
-        self._timeline = sorted(scenario.timeline, key=lambda a: a.t_s)
+        self._timeline = sorted(
+            (a for a in scenario.timeline if a.t_s is not None), key=lambda a: a.time_s
+        )
+        self._triggers = [a for a in scenario.timeline if a.t_s is None]
         for step in range(round(scenario.duration_s / STEP_S) + 1):
             self._step(step)
             if summary.collided:
@@ -204,17 +203,18 @@ class LockstepRun:
         tally = self._tally
         t_s = step * STEP_S
         now_ns = round(t_s * 1e9)
-        while self._timeline and self._timeline[0].t_s <= t_s + 1e-9:
+        while self._timeline and self._timeline[0].time_s <= t_s + 1e-9:
             self._act(self._timeline.pop(0), now_ns)
+        for action in [a for a in self._triggers if self._reached(a)]:
+            self._triggers.remove(action)
+            self._act(action, now_ns)
         state = self.vehicle.state
-        if step % self._every(self.scenario.fps) == 0 and self.camera_on:
-            scan = self.perceive(state, now_ns)
-            available = now_ns + round(LATENCY_S * 1e9)
+        if step % self._every(self.scenario.fps) == 0 and any(h.on for h in self.heads):
+            for head in self.heads:
+                head.capture(state, now_ns, round(LATENCY_S * 1e9))
             self._position(now_ns)
-            self._pending.append((available, scan, state.yaw_rad))
-        while self._pending and self._pending[0][0] <= now_ns:
-            _, scan, yaw_then = self._pending.pop(0)
-            self._latest = (scan, yaw_then)
+        for head in self.heads:
+            head.deliver(now_ns)
         fresh = self.fresh_scan(now_ns)
         tally.perception(fresh is not None, now_ns)
         if step % self._every(OBSTACLE_DISTANCE_HZ) == 0:
@@ -231,6 +231,7 @@ class LockstepRun:
         radius = self.scenario.avoidance.vehicle_radius_m
         clearance = self.world.edge_clearance_m(north, east, state.altitude_m, radius, t_s + STEP_S)
         speed = float(np.hypot(state.velocity_m_s[0], state.velocity_m_s[1]))
+        self._flown_m += speed * STEP_S
         tally.step(t_s, clearance, speed, self._decision.state)
         if step % self._every(TRACE_HZ) == 0:
             self.rows.append(
@@ -247,12 +248,22 @@ class LockstepRun:
             self.goal = Goal(g.north_m, g.east_m, g.altitude_m)
             self.cycle.new_goal()
             self._tally.goal_given(now_ns / 1e9)
-        elif action.action == "camera_unplug":
-            self.camera_on = False
-        elif action.action == "camera_replug":
-            self.camera_on = True
+        elif action.action in ("camera_unplug", "camera_replug"):
+            for head in self.heads:
+                if action.camera in (None, head.name):
+                    head.on = action.action == "camera_replug"
         elif action.action == "disarm":
             self.autopilot.armed = False
+
+    def _reached(self, action: ActionConfig) -> bool:
+        """Whether a distance-triggered action is due."""
+        if action.flown_m is not None:
+            return self._flown_m >= action.flown_m
+        if action.goal_within_m is None or self.goal is None:
+            return False
+        north, east, _ = (float(v) for v in self.vehicle.state.position_m)
+        away_m = math.hypot(self.goal.north_m - north, self.goal.east_m - east)
+        return away_m <= action.goal_within_m
 
     def _send_obstacle_distance(self, fresh: SectorScan | None, now_ns: int) -> None:
         if fresh is None:
@@ -280,7 +291,7 @@ class LockstepRun:
             fresh,
             self._position(now_ns),
             self.vehicle.state.yaw_rad,
-            None if fresh is None or self._latest is None else self._latest[1],
+            None if self._latest is None else self._latest[1],
             tuple(self._track.reports),
             self.goal,
         )

@@ -312,8 +312,8 @@ class Px4Run(ExternalRun):
 
     async def _camera_timeline(self) -> None:
         """The scenario's camera actions, at their times from the start of the push."""
-        for action in sorted(self.scenario.timeline, key=lambda a: a.t_s):
-            wait_s = action.t_s - (time.monotonic_ns() - self._t0_ns) / 1e9
+        for action in sorted(self.scenario.timeline, key=lambda a: a.time_s):
+            wait_s = action.time_s - (time.monotonic_ns() - self._t0_ns) / 1e9
             if wait_s > 0:
                 await asyncio.sleep(wait_s)
             self._plugged[0] = action.action == "camera_replug"

@@ -136,14 +136,14 @@ class RealtimeRun(ExternalRun):
 
     async def _play(self) -> None:
         """The timeline, and PX4's switch to OFFBOARD once avoidd streams, until the end."""
-        timeline = sorted(self.scenario.timeline, key=lambda a: a.t_s)
+        timeline = sorted(self.scenario.timeline, key=lambda a: a.time_s)
         rules = self.autopilot.rules
         end_ns = self._t0_ns + int(self.scenario.duration_s * 1e9)
         wants_offboard = rules.flavour == "px4" and not any(a.action == "mode" for a in timeline)
         while time.monotonic_ns() < end_ns:
             now_ns = time.monotonic_ns()
             t_s = (now_ns - self._t0_ns) / 1e9
-            while timeline and timeline[0].t_s <= t_s:
+            while timeline and timeline[0].time_s <= t_s:
                 self._act(timeline.pop(0), now_ns)
             if wants_offboard and rules.mode != "OFFBOARD" and rules.set_mode("OFFBOARD", now_ns):
                 wants_offboard = False

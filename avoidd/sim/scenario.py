@@ -8,6 +8,7 @@ from pathlib import Path
 from typing import Any
 
 from avoidd.config.sim import (
+    CameraConfig,
     GeneratedWorldConfig,
     ScenarioConfig,
     WorldConfig,
@@ -59,6 +60,36 @@ def prepare(
         seed=noise_seed,
         world_kind=kind,
     )
+
+
+def lockstep_only(scenario: ScenarioConfig, run: str) -> list[str]:
+    """What of a scenario only the lockstep simulator plays, one line each with the remedy.
+
+    The real-time and SITL runs render one forward head from reported poses at no time of the
+    scenario's, and play timed actions only.
+
+    Args:
+        scenario: The validated scenario.
+        run: What was to run it, for the message.
+    """
+    lines = []
+    subject = f"scenario {scenario.name}: {run}"
+    if scenario.cameras != [CameraConfig()]:
+        lines.append(f"{subject} has one forward head; remove 'cameras' or use 'avoidd sim run'")
+    if any(action.t_s is None for action in scenario.timeline):
+        lines.append(
+            f"{subject} plays timed actions only; give t_s instead of flown_m or goal_within_m"
+        )
+    if any(action.camera is not None for action in scenario.timeline):
+        lines.append(f"{subject} unplugs its one camera; remove 'camera' from the timeline")
+    world = world_of(scenario)
+    if world is None:
+        assert isinstance(scenario.world, GeneratedWorldConfig)
+        avoidance = scenario.avoidance
+        world, _ = generate(scenario.world, avoidance.vehicle_radius_m + avoidance.margin_m)
+    if any(obstacle.motion is not None for obstacle in world.obstacles):
+        lines.append(f"{subject} draws obstacles where they stand; remove their 'motion'")
+    return lines
 
 
 def run_file(
