@@ -127,8 +127,21 @@ class WorldConfig(Strict):
     treeline_m: float | None = Field(60.0, gt=5.0, le=2000.0)
 
 
+GapLength = Annotated[float, Field(ge=0.5, le=50.0)]
+GapSpan = GapLength | Annotated[tuple[GapLength, GapLength], Lax]
+"""A gap's width, or a range ``[low, high]`` to draw it from."""
+Offset = Annotated[float, Field(ge=-50.0, le=50.0)]
+OffsetSpan = Offset | Annotated[tuple[Offset, Offset], Lax]
+RoomLength = Annotated[float, Field(ge=3.0, le=50.0)]
+RoomSpan = RoomLength | Annotated[tuple[RoomLength, RoomLength], Lax]
+
+
 class GeneratedWorldConfig(Strict):
     """A world drawn by a seeded generator (see ``avoidd.sim.generators``).
+
+    A length given as ``[low, high]`` is drawn from that range for each seed. Gaps, spacings
+    and corridor widths are never drawn narrower than 2.2 times the vehicle's radius plus
+    margin (the planner must pass a gap that wide).
 
     Attributes:
         kind: The generator.
@@ -136,10 +149,40 @@ class GeneratedWorldConfig(Strict):
         density: Obstacles per 100 square metres (pole forest, boxes).
         gap_m: Width of the gap in a wall (wall with a gap).
         length_m: Length of the course along the way to the goal.
+        spacing_m: The least free gap between poles or boxes (None: twice the radius plus
+            margin, and 0.3 m).
+        width_m: The L-corridor's width (None: drawn from 4 to 6 m).
+        room_m: The side of a dead end's closed room.
+        goal_east_m: The goal's offset to the east of the course's axis (the L-corridor's
+            goal is round its corner and takes none).
+        texture: How textured the drawn obstacles are.
+        bars: Bars to add across the course at flight height (1.6-1.9 m up, 0.3 m deep).
+        movers: Poles to add that cross the course, back and forth at 0.3-1 m/s.
     """
 
     kind: Literal["pole_forest", "wall_gap", "l_corridor", "dead_end", "boxes", "wall", "open"]
     seed: int = Field(1, ge=0)
     density: float = Field(3.0, gt=0.0, le=50.0)
-    gap_m: float = Field(4.0, gt=0.5, le=50.0)
+    gap_m: GapSpan = 4.0
     length_m: float = Field(30.0, gt=5.0, le=500.0)
+    spacing_m: float | None = Field(None, gt=0.0, le=50.0)
+    width_m: GapSpan | None = None
+    room_m: RoomSpan = 6.0
+    goal_east_m: OffsetSpan = 0.0
+    texture: Texture = "full"
+    bars: int = Field(0, ge=0, le=20)
+    movers: int = Field(0, ge=0, le=20)
+
+    @model_validator(mode="after")
+    def _spans(self) -> GeneratedWorldConfig:
+        for name in ("gap_m", "width_m", "room_m", "goal_east_m"):
+            value = getattr(self, name)
+            if isinstance(value, tuple) and value[0] > value[1]:
+                raise ValueError(f"{name}: a range goes from low to high, not {list(value)}")
+        if self.kind == "l_corridor" and self.goal_east_m != 0.0:
+            raise ValueError("goal_east_m: an L-corridor's goal is round its corner; remove it")
+        if (self.bars or self.movers) and self.kind not in ("open", "pole_forest", "boxes"):
+            raise ValueError(
+                f"bars and movers go into open, pole_forest and boxes courses, not {self.kind}"
+            )
+        return self
