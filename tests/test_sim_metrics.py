@@ -140,3 +140,16 @@ def test_bad_bounds_in_a_scenario_name_the_line_and_key(tmp_path: Path) -> None:
     assert any(f"{path}:5: pass.max_side_changes" in line for line in lines), lines
     assert any(f"{path}:6: pass.start_delay_s" in line for line in lines), lines
     assert any(f"{path}:7: pass.no_path_within_s" in line for line in lines), lines
+
+
+def test_a_run_can_end_soon_after_arrival_or_no_path() -> None:
+    """``end_after_s``: the hover after the goal (or the hold after "no path") is cut short;
+    what was measured until then is the same."""
+    whole = _run({"kind": "open", "length_m": 12}, 15.0).run()
+    short = _run({"kind": "open", "length_m": 12}, 15.0, end_after_s=1.0).run()
+    assert short.time_to_goal_s == whole.time_to_goal_s is not None
+    assert short.sim_time_s == pytest.approx(whole.time_to_goal_s + 1.0, abs=0.02)
+    assert short.moving_speed_m_s == pytest.approx(whole.moving_speed_m_s, abs=0.05)
+    dead = _run({"kind": "dead_end", "length_m": 12}, 40.0, end_after_s=2.0).run()
+    assert dead.no_path_s is not None and dead.end_state == "no path"
+    assert dead.sim_time_s == pytest.approx(dead.no_path_s + 2.0, abs=0.02)

@@ -158,6 +158,9 @@ class ScenarioConfig(Strict):
         start: Where the vehicle starts (flying: the scenario begins in the air).
         goal: Where avoidd is to fly it (a generated world brings its own; this replaces it).
         duration_s: Length of the run.
+        end_after_s: The run ends this long after the goal is reached or the planner first
+            says "no path" (None: it runs for ``duration_s``; a batch spends less time
+            hovering).
         fps: Camera frames per second.
         resolution: Camera size (``320x240`` or ``640x480``).
         perception: ``stereo`` (render both views and run the pipeline) or ``oracle`` (exact
@@ -176,6 +179,7 @@ class ScenarioConfig(Strict):
     start: PlacementConfig = PlacementConfig()
     goal: PlacementConfig | None = None
     duration_s: float = Field(60.0, gt=0.0, le=3600.0)
+    end_after_s: float | None = Field(None, ge=0.0, le=3600.0)
     fps: float = Field(15.0, ge=0.1, le=60.0)
     resolution: Literal["320x240", "640x480"] = "320x240"
     perception: Literal["stereo", "oracle"] = "stereo"

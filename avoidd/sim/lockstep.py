@@ -188,12 +188,22 @@ class LockstepRun:
         self._triggers = [a for a in scenario.timeline if a.t_s is None]
         for step in range(round(scenario.duration_s / STEP_S) + 1):
             self._step(step)
-            if summary.collided:
+            if summary.collided or self._settled(summary, step * STEP_S):
                 break
         self._tally.finish(self._decision.state)
         summary.wall_time_s = time.perf_counter() - started
         judge(summary, scenario.passing)
         return summary
+
+    def _settled(self, summary: Summary, t_s: float) -> bool:
+        """Whether the run may end: ``end_after_s`` after arrival or the first "no path"."""
+        wait_s = self.scenario.end_after_s
+        if wait_s is None:
+            return False
+        if summary.time_to_goal_s is not None:
+            return t_s >= summary.time_to_goal_s + wait_s - 1e-9
+        no_path_s = self._tally.no_path_t_s
+        return no_path_s is not None and t_s >= no_path_s + wait_s - 1e-9
 
     def _every(self, rate_hz: float) -> int:
         return round(1.0 / (rate_hz * STEP_S))

@@ -123,6 +123,8 @@ class Tally:
         self._was_fresh = False
         self._goal_t_s = 0.0
         self._search_t_s: float | None = None
+        self.no_path_t_s: float | None = None
+        """When the planner first said "no path" (from the start)."""
 
     def goal_given(self, t_s: float) -> None:
         """A new goal: the time to "no path" counts from here."""
@@ -174,6 +176,7 @@ class Tally:
         if state == "moving" and side == 0:
             self._search_t_s = None
         elif state == "no path" and summary.no_path_s is None:
+            self.no_path_t_s = t_s
             summary.no_path_s = t_s - self._goal_t_s
             if self._search_t_s is not None:
                 summary.search_s = t_s - self._search_t_s
