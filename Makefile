@@ -6,7 +6,7 @@ VENV := .venv
 BIN := $(VENV)/bin
 CONFIG ?= config/demo.yaml
 
-.PHONY: run test sim lint typecheck pytest format clean config-reference bench-bad-input
+.PHONY: run test sim sim-random lint typecheck pytest format clean config-reference bench-bad-input
 
 run: $(VENV)/.stamp-run
 	$(BIN)/avoidd run --config $(CONFIG)
@@ -21,6 +21,12 @@ test: $(VENV)/.stamp-test
 SEEDS ?= 1
 sim: $(VENV)/.stamp-run
 	$(BIN)/avoidd sim batch sitl/scenarios/*.yaml --seeds $(SEEDS) --json sim-batch.json
+
+# The randomized set (sitl/scenarios/random): 20 scenarios x 5 seeds = 100 flights at 3 m/s;
+# MAX_SPEED=5 flies the same worlds at 5 m/s.
+sim-random: $(VENV)/.stamp-run
+	$(BIN)/avoidd sim batch sitl/scenarios/random/*.yaml --seeds 5 --workers 2 \
+		$(if $(MAX_SPEED),--max-speed $(MAX_SPEED)) --json sim-random.json
 
 # docs/config-reference.md from the config models (tests/test_config_reference.py checks it).
 config-reference: $(VENV)/.stamp-run
