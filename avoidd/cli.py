@@ -6,8 +6,10 @@ The commands themselves live in :mod:`avoidd.commands`, one module per family.
 from __future__ import annotations
 
 import argparse
+import contextlib
 import logging
 import os
+import signal
 import sys
 from collections.abc import Sequence
 
@@ -61,6 +63,28 @@ def build_parser(chosen: str | None = None) -> argparse.ArgumentParser:
     return parser
 
 
+class _Terminated(BaseException):
+    """SIGTERM before the command took signals over: a stop asked for, exit 0 like a later one."""
+
+
+def _terminate(signum: int, frame: object) -> None:
+    raise _Terminated
+
+
+def _stop_on_sigterm() -> object:
+    """Make SIGTERM a clean stop from now on; returns the handler it replaced (None: none).
+
+    Until the command installs its own handling (the daemon's event loop, the recorder's),
+    SIGTERM would kill the process with the default action (exit 143; systemd's stop during
+    the first 0.7 s of imports and loading did): it stops as Ctrl-C does instead. Only the
+    main thread may set it; elsewhere nothing changes.
+    """
+    try:
+        return signal.signal(signal.SIGTERM, _terminate)
+    except ValueError:
+        return None
+
+
 def main(argv: Sequence[str] | None = None) -> int:
     """Run the ``avoidd`` command.
 
@@ -68,14 +92,23 @@ def main(argv: Sequence[str] | None = None) -> int:
         argv: Arguments without the program name (default: ``sys.argv[1:]``).
 
     Returns:
-        The exit code: 0 ok, 1 runtime failure, 2 configuration error.
+        The exit code: 0 ok (Ctrl-C and SIGTERM included, however early), 1 runtime failure,
+        2 configuration error.
     """
-    argv = list(sys.argv[1:] if argv is None else argv)
+    previous = _stop_on_sigterm()
     try:
-        # Ctrl-C while the command's modules load is no error either.
-        args = build_parser(chosen_command(argv)).parse_args(argv)
-    except KeyboardInterrupt:
+        return _main(list(sys.argv[1:] if argv is None else argv))
+    except (KeyboardInterrupt, _Terminated):
         return EXIT_OK
+    finally:
+        if previous is not None:
+            with contextlib.suppress(ValueError, TypeError):
+                signal.signal(signal.SIGTERM, previous)  # type: ignore[arg-type]
+
+
+def _main(argv: list[str]) -> int:
+    # Ctrl-C or SIGTERM while the command's modules load is no error either (see main).
+    args = build_parser(chosen_command(argv)).parse_args(argv)
     _setup_logging(args.log_level)
     try:
         code: int = args.handler(args)
@@ -87,6 +120,4 @@ def main(argv: Sequence[str] | None = None) -> int:
     except AvoiddError as exc:
         logger.error("%s", exc)
         return EXIT_FAILURE
-    except KeyboardInterrupt:
-        return EXIT_OK
     return code

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import asyncio
+import itertools
 import math
 import os
 import socket
@@ -251,3 +252,66 @@ def great_circle_ne(
         math.cos(phi1) * math.sin(phi2) - math.sin(phi1) * math.cos(phi2) * math.cos(d_lambda),
     )
     return distance_m * math.cos(bearing), distance_m * math.sin(bearing)
+
+
+async def _beat_generic(peer: UdpPeer, daemon: Any, system_id: int) -> None:
+    mav = dialect.MAVLink(None, srcSystem=system_id, srcComponent=1)
+    heartbeat = bytes(
+        mav.heartbeat_encode(
+            dialect.MAV_TYPE_QUADROTOR, dialect.MAV_AUTOPILOT_GENERIC, 0, 0, 4
+        ).pack(mav)
+    )
+    while getattr(daemon.link.transport, "socket_fileno", lambda: None)() is None:
+        await asyncio.sleep(0.02)
+    port = daemon.link.transport.local_port
+    while True:
+        peer.transport.sendto(heartbeat, ("127.0.0.1", port))
+        await asyncio.sleep(0.5)
+
+
+def beat_as_generic_autopilot(peer: UdpPeer, daemon: Any, system_id: int = 7) -> asyncio.Task[None]:
+    """Make ``peer`` an autopilot that is neither ArduPilot nor PX4 for a ``udpout`` daemon.
+
+    It sends the daemon's socket a MAV_AUTOPILOT_GENERIC heartbeat twice a second (cancel the
+    task to stop): such an autopilot gets DISTANCE_SENSOR whenever it is enabled.
+    """
+    return asyncio.create_task(_beat_generic(peer, daemon, system_id))
+
+
+def obstacle_distance_times(autopilot: Any, start_ns: int, end_ns: int) -> list[float]:
+    """When a mock autopilot decoded each OBSTACLE_DISTANCE in a window (monotonic seconds)."""
+    return [
+        r.received_ns / 1e9
+        for r in autopilot.recorded
+        if r.message.get_type() == "OBSTACLE_DISTANCE" and start_ns <= r.received_ns <= end_ns
+    ]
+
+
+@dataclass
+class Flow:
+    """OBSTACLE_DISTANCE as an autopilot heard it over a window: its rate and longest gap."""
+
+    rate_hz: float
+    longest_gap_s: float
+
+    @classmethod
+    def of(cls, autopilot: Any, start_ns: int, end_ns: int) -> Flow:
+        times = obstacle_distance_times(autopilot, start_ns, end_ns)
+        gaps = [b - a for a, b in itertools.pairwise(times)]
+        window_s = max((end_ns - start_ns) / 1e9, 1e-9)
+        return cls(len(times) / window_s, max(gaps, default=math.inf))
+
+    def kept_up_with(self, control: Flow) -> bool:
+        """Whether this window's flow is as good as a control window's on the same machine.
+
+        A loaded machine (two busy loops, a simulation beside) slows the daemon with or
+        without the fault: the fault's window is held to the control window measured just
+        before it (at least 60% of its rate, a longest gap at most three times its own), never
+        to less than what the autopilot needs (a message at least every 0.5 s, after which
+        both autopilots drop the data).
+        """
+        gap_bound_s = max(0.5, 3.0 * control.longest_gap_s + 0.1)
+        return self.rate_hz >= 0.6 * control.rate_hz and self.longest_gap_s <= gap_bound_s
+
+    def __str__(self) -> str:
+        return f"{self.rate_hz:.1f} Hz, longest gap {self.longest_gap_s:.3f} s"

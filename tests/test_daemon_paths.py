@@ -20,6 +20,7 @@ from avoidd.sources.scene import Pole, Scene, render_pair, to_uint8
 from avoidd.types import RectifiedRig
 from tests.helpers import (
     RIG_320,
+    beat_as_generic_autopilot,
     free_udp_port,
     open_udp_peer,
     start_daemon,
@@ -113,6 +114,8 @@ async def test_one_stale_head_leaves_the_others_untouched(tmp_path: Path) -> Non
         pipeline={"max_age_ms": 1000, "log_interval_s": 1.0},
     )
     daemon, task = await start_daemon(config)
+    # An autopilot that is neither ArduPilot nor PX4: it gets DISTANCE_SENSOR.
+    beat = beat_as_generic_autopilot(peer, daemon)
     try:
         assert await wait_for(
             lambda: any(
@@ -137,6 +140,7 @@ async def test_one_stale_head_leaves_the_others_untouched(tmp_path: Path) -> Non
             10.0,
         )
     finally:
+        beat.cancel()
         await stop_daemon(daemon, task)
         peer.close()
     before = [r.message for r in peer.messages[:stale_at]]

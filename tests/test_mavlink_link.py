@@ -12,6 +12,7 @@ from pathlib import Path
 
 import pytest
 
+from avoidd.mavlink import codec as mav
 from avoidd.mavlink.layout import read_bins
 from avoidd.mavlink.mock_autopilot import MockAutopilot
 from tests.helpers import (
@@ -71,7 +72,15 @@ async def test_udpout_messages_decode_field_by_field(tmp_path: Path) -> None:
     assert "avoidd started" in texts
 
 
-async def test_udpin_answers_the_peer_that_spoke_last(tmp_path: Path) -> None:
+def _heartbeat(system_id: int) -> bytes:
+    """An ArduCopter heartbeat of ``system_id`` (component 1), as bytes on the wire."""
+    codec = mav.Codec(system_id, mav.MAV_COMP_ID_AUTOPILOT1)
+    return codec.pack(
+        codec.build("HEARTBEAT", mav.MAV_TYPE_QUADROTOR, mav.MAV_AUTOPILOT_ARDUPILOTMEGA, 0, 0, 4)
+    )
+
+
+async def test_udpin_answers_only_the_autopilot_it_adopted(tmp_path: Path) -> None:
     port = free_udp_port()
     daemon, task = await start_daemon(synthetic_config(tmp_path, f"udpin:127.0.0.1:{port}"))
     first, second = await open_udp_peer(), await open_udp_peer()
@@ -83,24 +92,34 @@ async def test_udpin_answers_the_peer_that_spoke_last(tmp_path: Path) -> None:
                 lambda: link.dropped["HEARTBEAT"] >= 1 and link.dropped["OBSTACLE_DISTANCE"] >= 3,
                 20.0,
             ), f"dropped {dict(link.dropped)}"
-            assert sum(link.sent.values()) == 0
             assert first.transport is not None and second.transport is not None
-            first.transport.sendto(first.heartbeat_bytes(), ("127.0.0.1", port))
-            assert await wait_for(lambda: len(first.of_type("OBSTACLE_DISTANCE")) >= 3, 10.0)
-            # Another peer speaks: from now on it gets everything, the first one nothing more.
-            second.transport.sendto(second.heartbeat_bytes(), ("127.0.0.1", port))
+            # A valid heartbeat of another system (the config says 7) adopts nothing: nothing
+            # is sent to its sender.
+            first.transport.sendto(_heartbeat(1), ("127.0.0.1", port))
+            assert await wait_for(lambda: daemon.received["HEARTBEAT"] == 1, 5.0)
+            dropped = link.dropped["OBSTACLE_DISTANCE"]
+            assert await wait_for(lambda: link.dropped["OBSTACLE_DISTANCE"] >= dropped + 3, 10.0)
+            assert sum(link.sent.values()) == 0 and first.messages == []
+            # The vehicle's heartbeat: its sender is the autopilot and gets everything.
+            second.transport.sendto(_heartbeat(7), ("127.0.0.1", port))
             assert await wait_for(lambda: len(second.of_type("OBSTACLE_DISTANCE")) >= 3, 10.0)
-            heard_by_first = len(first.messages)
-            assert await wait_for(lambda: len(second.of_type("OBSTACLE_DISTANCE")) >= 8, 10.0)
-            assert len(first.messages) == heard_by_first
-            assert daemon.received["HEARTBEAT"] == 2
+            # Another sender of the vehicle's heartbeat while the autopilot is heard: a
+            # stranger, answered nothing (it cannot take the link over).
+            for _ in range(3):
+                first.transport.sendto(_heartbeat(7), ("127.0.0.1", port))
+                second.transport.sendto(_heartbeat(7), ("127.0.0.1", port))
+                await asyncio.sleep(0.3)
+            heard = len(second.of_type("OBSTACLE_DISTANCE"))
+            assert await wait_for(lambda: len(second.of_type("OBSTACLE_DISTANCE")) >= heard + 5, 10)
+            assert first.messages == []
+            assert link.strangers[f"127.0.0.1:{first.port}"].datagrams == 3
         finally:
             await stop_daemon(daemon, task)
-        # Every message the daemon counts as sent reached one of the two peers, and no other.
+        # Every message the daemon counts as sent reached the autopilot, and no other.
         sent = sum(link.sent.values())
-        heard = lambda: len(first.messages) + len(second.messages)  # noqa: E731
-        assert await wait_for(lambda: heard() == sent, 5.0), f"sent {sent}, heard {heard()}"
-        assert first.parse_errors == second.parse_errors == 0
+        heard_all = lambda: len(second.messages)  # noqa: E731
+        assert await wait_for(lambda: heard_all() == sent, 5.0), f"sent {sent}, heard {heard_all()}"
+        assert first.messages == [] and second.parse_errors == 0
     finally:
         first.close()
         second.close()

@@ -21,6 +21,7 @@ from avoidd.mavlink.messages import (
 from avoidd.types import Mount, RectifiedRig, SectorScan
 from tests.helpers import (
     MavlinkPeer,
+    beat_as_generic_autopilot,
     open_udp_peer,
     start_daemon,
     stop_daemon,
@@ -154,6 +155,8 @@ async def test_two_heads_merge_and_each_reports_its_distance_sensor(tmp_path: Pa
         },
     )
     daemon, task = await start_daemon(config)
+    # An autopilot that is neither ArduPilot nor PX4: it gets DISTANCE_SENSOR.
+    beat = beat_as_generic_autopilot(peer, daemon)
     try:
         assert await wait_for(
             lambda: (
@@ -164,6 +167,7 @@ async def test_two_heads_merge_and_each_reports_its_distance_sensor(tmp_path: Pa
             20.0,
         ), "no DISTANCE_SENSOR from both heads"
     finally:
+        beat.cancel()
         await stop_daemon(daemon, task)
         peer.close()
     sensors = [m for m in peer.of_type("DISTANCE_SENSOR") if m.current_distance < 2000]
@@ -172,7 +176,7 @@ async def test_two_heads_merge_and_each_reports_its_distance_sensor(tmp_path: Pa
     # The box's front face is 2.2 m ahead; the pole's near side 1.9 m to the right.
     assert by_id[0].current_distance == pytest.approx(220, rel=0.04)
     assert by_id[1].current_distance == pytest.approx(190, rel=0.04)
-    # The peer is no autopilot, so it gets DISTANCE_SENSOR (ArduPilot and PX4 would not:
+    # The peer is an autopilot of another kind, so it gets DISTANCE_SENSOR (ArduPilot and PX4 not:
     # test_wire_layout) and the layout that starts at -20 degrees.
     scans = [
         read_bins(m.distances, m.increment_f, m.angle_offset)

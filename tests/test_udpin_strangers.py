@@ -110,9 +110,8 @@ async def test_a_stranger_gets_nothing_and_its_garbage_cannot_take_the_link_down
         name = f"127.0.0.1:{stray.port}"
         assert await wait_for(lambda: daemon.link.strangers[name].datagrams == datagrams, 5.0)
         count = daemon.link.strangers[name]
-        # (its own garbage swallows some of its own forgeries: its parser is its own)
-        assert 0 < count.messages <= forged
         assert count.bytes > datagrams
+        assert forged > 0 and not hasattr(count, "messages")  # nothing of it is decoded
         assert list(daemon.link.strangers) == [name]
         named = [r for r in caplog.records if name in r.getMessage()]
         assert len(named) == 1 and "not the autopilot" in named[0].getMessage()

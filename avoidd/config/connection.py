@@ -127,3 +127,40 @@ def _parse_serial(text: str, prefix: str) -> LinkSpec:
         choices = ", ".join(str(b) for b in STANDARD_BAUDS)
         raise ValueError(f"'{text}': unsupported baud rate {baud}; use one of {choices}")
     return LinkSpec(kind="serial", device=device, baud=baud)
+
+
+def parse_address(text: str) -> tuple[str, int | None]:
+    """Parse a peer's address: ``HOST`` or ``HOST:PORT`` (IPv6 as ``[ADDR]`` or ``[ADDR]:PORT``).
+
+    The host must be an IP address (a datagram's sender is one; a name could resolve to
+    another address later).
+
+    Returns:
+        The address as text and the port (None when not given).
+
+    Raises:
+        ValueError: Not an address with an optional port; the message says what is.
+    """
+    text = text.strip()
+    port_text = ""
+    if text.startswith("["):
+        host, bracket, tail = text[1:].partition("]")
+        if not bracket or (tail and not tail.startswith(":")):
+            raise ValueError(f"'{text}': write an IPv6 address as [ADDR] or [ADDR]:PORT")
+        port_text = tail[1:]
+    elif text.count(":") == 1:
+        host, _, port_text = text.partition(":")
+    else:
+        host = text
+    try:
+        ipaddress.ip_address(host)
+    except ValueError:
+        raise ValueError(
+            f"'{text}': not an IP address (a name is not taken: the autopilot's datagrams "
+            "come from an address); write e.g. 127.0.0.1, 192.168.1.5:14550 or [::1]"
+        ) from None
+    if not port_text:
+        return host, None
+    if not port_text.isdigit() or not 1 <= int(port_text) <= 65535:
+        raise ValueError(f"'{text}': port must be a number from 1 to 65535")
+    return host, int(port_text)

@@ -8,7 +8,7 @@ from typing import Annotated, Literal
 from pydantic import AfterValidator, Field, field_validator, model_validator
 
 from avoidd.config.base import ConfigPath, Strict
-from avoidd.config.connection import LinkSpec, parse_connection
+from avoidd.config.connection import LinkSpec, parse_address, parse_connection
 from avoidd.errors import ConfigError
 
 
@@ -129,7 +129,8 @@ class DistanceSensorConfig(Strict):
     within 2.5 degrees of a multiple of 45, pitch within 30 degrees of level.
 
     Attributes:
-        enabled: Send it (to autopilots other than ArduPilot and PX4, or with the next key).
+        enabled: Send it (to autopilots other than ArduPilot and PX4 once heard from, or with
+            the next key).
         rate_hz: Messages per second per head.
         alongside_obstacle_distance: Also send it to ArduPilot and PX4. Both take a horizontal
             DISTANCE_SENSOR into the same proximity map as OBSTACLE_DISTANCE: ArduPilot keeps
@@ -195,9 +196,14 @@ class MavlinkConfig(Strict):
         component_id: avoidd's own component id (196 is MAV_COMP_ID_OBSTACLE_AVOIDANCE;
             goals addressed to avoidd use it).
         control: Who may command avoidd (goals, parameters).
+        autopilot_address: On a ``udpin`` link, the only address (``HOST`` or
+            ``HOST:PORT``) heard as the autopilot: every other sender is ignored from its
+            first datagram on, and nothing is sent to it. Without it the first sender of a
+            heartbeat avoidd adopts becomes the autopilot (see docs/mavlink.md, "Links").
     """
 
     connection: str | None = None
+    autopilot_address: str | None = None
     system_id: int | Literal["auto"] = "auto"
     component_id: int = Field(196, ge=1, le=255)
     autopilot_component_id: int = Field(1, ge=1, le=255)
@@ -226,6 +232,24 @@ class MavlinkConfig(Strict):
         if value is not None:
             parse_connection(value)
         return value
+
+    @field_validator("autopilot_address")
+    @classmethod
+    def _address(cls, value: str | None) -> str | None:
+        if value is not None:
+            parse_address(value)
+        return value
+
+    @model_validator(mode="after")
+    def _address_needs_udpin(self) -> MavlinkConfig:
+        if self.autopilot_address is not None and self.connection is not None:
+            kind = parse_connection(self.connection).kind
+            if kind != "udpin":
+                raise ValueError(
+                    f"autopilot_address is for a udpin connection; {kind} has one peer "
+                    "already (remove autopilot_address)"
+                )
+        return self
 
     @property
     def link(self) -> LinkSpec:

@@ -30,7 +30,9 @@ from avoidd.errors import AvoiddError
 from avoidd.loading import obstacle_range_cm
 from avoidd.mavlink import codec as mav
 from avoidd.mavlink.link import MavLink
+from avoidd.mavlink.senders import AddressPin
 from avoidd.mavlink.signed import keep_timestamps, sign_link
+from avoidd.mavlink.twins import TwinWatch, instance_id
 from avoidd.mavlink.vehicle import Vehicle
 from avoidd.perception.pose import resolve_pose
 from avoidd.sources.base import FrameSource
@@ -57,10 +59,12 @@ def build_link(config: MavlinkConfig) -> MavLink:
     Returns:
         The link (not opened); the daemon enables signing on its codec if configured.
     """
+    pin = config.autopilot_address
     return MavLink(
         config.link,
         mav.Codec(config.fixed_system_id or 1, config.component_id),
         autopilot_timeout_s=config.link_timeout_s,
+        autopilot_address=AddressPin.parse(pin) if pin is not None else None,
     )
 
 
@@ -111,6 +115,9 @@ class Daemon:
         self._timestamps = sign_link(self.codec, mavlink.signing)
         self._announcer: Announcer | None = None
         self.vehicle = Vehicle(self.link, mavlink, self.announce)
+        self.codec.instance = instance_id()
+        self.twins = TwinWatch(self.link, self.codec.instance, self.announce)
+        """Another sender speaking as avoidd's system and component (a second daemon)."""
         self._max_age_ns = config.pipeline.max_age_ms * 1_000_000
         self.threads = config.pipeline.threads or cv2.getNumberOfCPUs()
         """Vision threads (``pipeline.threads``, 0 = one per core)."""

@@ -97,6 +97,7 @@ class Outputs:
         self.last_sent: tuple[int, Message] | None = None
         """The last OBSTACLE_DISTANCE sent and when (monotonic ns), for the debug view."""
         self._last_usec = 0
+        self._last_autopilot: str | None = None
         self._blind_log = RepeatLimiter(logger)
         self._nothing_known_since_ns: int | None = None
         nearest_m = max((head.pipeline.min_range_m for head in heads), default=0.0)
@@ -190,10 +191,16 @@ class Outputs:
         ArduPilot and PX4 both put a horizontal DISTANCE_SENSOR into the same proximity map as
         OBSTACLE_DISTANCE: ArduPilot keeps whichever message wrote a 45-degree sector last
         (so the two fight over it), PX4 spreads the one reading over the sensor's whole field
-        of view. So they get it only with ``distance_sensor.alongside_obstacle_distance``;
-        other autopilots (and one not yet heard from) get it whenever it is enabled.
+        of view. So they get it only with ``distance_sensor.alongside_obstacle_distance``, and
+        so does an autopilot not heard from yet (it may be either: an earlier version sent
+        ArduPilot DISTANCE_SENSOR until its first heartbeat arrived) or one whose link is
+        down (the one heard last is taken to be coming back). Other autopilots get it
+        whenever it is enabled.
         """
-        if self.autopilot() in (ARDUPILOT, PX4):
+        autopilot = self.autopilot()
+        if autopilot is not None:
+            self._last_autopilot = autopilot
+        if self._last_autopilot in (None, ARDUPILOT, PX4):
             return self.config.distance_sensor.alongside_obstacle_distance
         return True
 

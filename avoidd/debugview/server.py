@@ -18,12 +18,14 @@ import json
 import logging
 import time
 from collections.abc import Awaitable, Callable, Mapping
+from concurrent.futures import ThreadPoolExecutor
 from typing import TYPE_CHECKING
 
 from aiohttp import web
 from prometheus_client import CONTENT_TYPE_LATEST, CollectorRegistry, generate_latest
 
 from avoidd.config import DebugServerConfig
+from avoidd.daemon.head import lower_thread_priority
 from avoidd.debugview import metrics, views
 from avoidd.debugview.gate import ConnectionGate, host_allowed
 from avoidd.debugview.page import page_html
@@ -37,6 +39,8 @@ logger = logging.getLogger(__name__)
 _BOUNDARY = "avoiddframe"
 _RATE_WINDOW_NS = 1_000_000_000
 _RETRY_BIND_S = 10.0
+DRAW_NICE = 10
+"""Nice steps added to the thread that draws the view's pictures."""
 _KEEPALIVE_S = 10.0
 """An idle kept-alive connection is closed after this long (aiohttp's default is 75 s)."""
 
@@ -67,6 +71,14 @@ class DebugServer:
         self.viewers = 0
         self.gate: ConnectionGate | None = None
         self.refused_hosts = 0
+        # One thread draws every picture, niced: under load the vision threads and the event
+        # loop (which sends OBSTACLE_DISTANCE) go first.
+        self._draw_pool = ThreadPoolExecutor(
+            1,
+            thread_name_prefix="debugview-draw",
+            initializer=lower_thread_priority,
+            initargs=(DRAW_NICE,),
+        )
         self._streams: dict[str, views.Stream] = {}
         self._previous: DaemonStats | None = None
         self._closing = False
@@ -96,12 +108,12 @@ class DebugServer:
         quality = self.config.jpeg_quality
         max_range_m = self.daemon.config.mavlink.obstacle_distance.max_distance_cm / 100.0
         if name == "polar":
-            stream = views.polar_stream(self.daemon, quality, self.counter)
+            stream = views.polar_stream(self.daemon, quality, self.counter, self._draw_pool)
         else:
             head = next((h for h in self.daemon.heads if f"head/{h.name}" == name), None)
             if head is None:
                 return None
-            stream = views.head_stream(head, max_range_m, quality, self.counter)
+            stream = views.head_stream(head, max_range_m, quality, self.counter, self._draw_pool)
         self._streams[name] = stream
         return stream
 
@@ -245,6 +257,7 @@ class DebugServer:
             if listening is not None:
                 listening.close()
             await runner.cleanup()
+            self._draw_pool.shutdown(wait=False)
 
     async def _bind(self, gate: ConnectionGate) -> asyncio.Server:
         loop = asyncio.get_running_loop()

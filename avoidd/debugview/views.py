@@ -12,6 +12,7 @@ import math
 import threading
 import time
 from collections.abc import Callable, Hashable
+from concurrent.futures import Executor
 from dataclasses import dataclass
 from typing import TYPE_CHECKING
 
@@ -50,6 +51,7 @@ class Stream:
         draw: Draws the picture (called in a worker thread).
         quality: JPEG quality.
         counter: Counts each encoding.
+        pool: The worker threads that draw (None: asyncio's default ones).
     """
 
     def __init__(
@@ -58,11 +60,13 @@ class Stream:
         draw: Callable[[], Image | None],
         quality: int,
         counter: EncodeCounter,
+        pool: Executor | None = None,
     ) -> None:
         self._key = key
         self._draw = draw
         self._quality = quality
         self._counter = counter
+        self._pool = pool
         self._lock = asyncio.Lock()
         self._cached_key: Hashable | None = None
         self._cached: bytes | None = None
@@ -83,7 +87,8 @@ class Stream:
             return None
         async with self._lock:
             if key != self._cached_key or self._cached is None:
-                data = await asyncio.to_thread(self._encode)
+                loop = asyncio.get_running_loop()
+                data = await loop.run_in_executor(self._pool, self._encode)
                 if data is None:
                     return None
                 self._cached_key, self._cached = key, data
@@ -110,14 +115,20 @@ def head_picture(head: Head, max_range_m: float) -> Image | None:
     )
 
 
-def head_stream(head: Head, max_range_m: float, quality: int, counter: EncodeCounter) -> Stream:
+def head_stream(
+    head: Head,
+    max_range_m: float,
+    quality: int,
+    counter: EncodeCounter,
+    pool: Executor | None = None,
+) -> Stream:
     """The stream of :func:`head_picture` (a new picture with each processed frame)."""
 
     def key() -> Hashable | None:
         latest = head.latest
         return None if latest is None else (latest.seq, latest.t_capture_ns)
 
-    return Stream(key, lambda: head_picture(head, max_range_m), quality, counter)
+    return Stream(key, lambda: head_picture(head, max_range_m), quality, counter, pool)
 
 
 def planner_bearings(daemon: Daemon) -> tuple[float | None, float | None]:
@@ -173,7 +184,9 @@ def polar_status(sent_ns: int | None, now_ns: int, withheld: int, planner: str |
     return f"{text}; {planner}" if planner else text
 
 
-def polar_stream(daemon: Daemon, quality: int, counter: EncodeCounter) -> Stream:
+def polar_stream(
+    daemon: Daemon, quality: int, counter: EncodeCounter, pool: Executor | None = None
+) -> Stream:
     """The stream of the sent scan with the planner's arrows and state."""
 
     def status() -> str:
@@ -192,4 +205,4 @@ def polar_stream(daemon: Daemon, quality: int, counter: EncodeCounter) -> Stream
         goal_deg, direction_deg = planner_bearings(daemon)
         return render.polar_panel(scan, 480, status(), goal_deg, direction_deg)
 
-    return Stream(key, draw, quality, counter)
+    return Stream(key, draw, quality, counter, pool)

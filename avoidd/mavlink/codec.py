@@ -132,6 +132,8 @@ class Codec:
         self.signature_rejects = 0
         self.signature_check: SignatureCheck | None = None
         """The check of incoming signatures, once signing is enabled."""
+        self.instance = 0
+        """This run's instance number, sent in HEARTBEAT ``custom_mode`` (0: none)."""
 
     @property
     def system_id(self) -> int:
@@ -192,9 +194,13 @@ class Codec:
     # --- building ----------------------------------------------------------------------------
 
     def heartbeat(self, system_status: int) -> Message:
-        """A HEARTBEAT of an onboard controller (no autopilot)."""
+        """A HEARTBEAT of an onboard controller (no autopilot).
+
+        ``custom_mode``, free for a component that is no autopilot, carries :attr:`instance`
+        (see :mod:`avoidd.mavlink.twins`).
+        """
         return self._mav.heartbeat_encode(
-            MAV_TYPE_ONBOARD_CONTROLLER, MAV_AUTOPILOT_INVALID, 0, 0, system_status
+            MAV_TYPE_ONBOARD_CONTROLLER, MAV_AUTOPILOT_INVALID, 0, self.instance, system_status
         )
 
     def obstacle_distance(

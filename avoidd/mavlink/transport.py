@@ -1,4 +1,4 @@
-"""Byte transports for MAVLink on asyncio: UDP out/in, TCP client and serial, none blocking."""
+"""Byte transports for MAVLink on asyncio: UDP (:mod:`.udp`), TCP client and server, serial."""
 
 from __future__ import annotations
 
@@ -17,6 +17,7 @@ from avoidd.aio import cancel_task
 from avoidd.config.connection import STANDARD_BAUDS, LinkSpec
 from avoidd.errors import LinkError
 from avoidd.logrepeat import RepeatLimiter
+from avoidd.mavlink.udp import UdpTransport
 
 logger = logging.getLogger(__name__)
 
@@ -55,117 +56,6 @@ class Transport(Protocol):
     async def close(self) -> None:
         """Stop and release everything."""
         ...
-
-
-class _Datagram(asyncio.DatagramProtocol):
-    def __init__(self, owner: _UdpTransport) -> None:
-        self._owner = owner
-
-    def datagram_received(self, data: bytes, addr: Any) -> None:
-        self._owner.datagram_received(data, addr)
-
-    def error_received(self, exc: Exception) -> None:
-        # ICMP port unreachable while nobody listens yet: expected with udpout.
-        self._owner.send_errors += 1
-
-    def connection_lost(self, exc: Exception | None) -> None:
-        self._owner.socket_closed.set()
-
-
-class _UdpTransport:
-    """UDP out (to a fixed address) or in (listening).
-
-    Args:
-        spec: The link.
-        on_receive: Gets every datagram and its sender.
-        follow_sender: ``udpin`` answers whoever sent the last datagram; otherwise nobody
-            until :meth:`reply_to` names the peer.
-    """
-
-    def __init__(self, spec: LinkSpec, on_receive: SenderCallback, follow_sender: bool) -> None:
-        self._spec = spec
-        self._on_receive = on_receive
-        self._follow_sender = follow_sender
-        self._transport: asyncio.DatagramTransport | None = None
-        self._peer: Any = None
-        self.send_errors = 0
-        self.socket_closed = asyncio.Event()
-        """Set when the socket is closed (asyncio closes it a loop turn after ``close()``)."""
-
-    @property
-    def connected(self) -> bool:
-        return self._transport is not None and self._peer is not None
-
-    @property
-    def local_port(self) -> int:
-        """The local port (useful when bound to port 0)."""
-        assert self._transport is not None
-        return int(self._transport.get_extra_info("sockname")[1])
-
-    @property
-    def peer(self) -> Any:
-        """Where it sends (None until known)."""
-        return self._peer
-
-    def socket_fileno(self) -> int | None:
-        """The socket's file descriptor (None when closed).
-
-        A thread that must send on time whatever the event loop does can ``dup`` it and send
-        from the same address.
-        """
-        if self._transport is None:
-            return None
-        sock = self._transport.get_extra_info("socket")
-        return None if sock is None else int(sock.fileno())
-
-    def datagram_received(self, data: bytes, addr: Any) -> None:
-        if self._spec.kind == "udpin" and self._follow_sender:
-            self._peer = addr
-        self._on_receive(data, addr)
-
-    def reply_to(self, sender: Sender) -> None:
-        if self._spec.kind == "udpin" and sender is not None:
-            self._peer = sender
-
-    async def open(self) -> None:
-        loop = asyncio.get_running_loop()
-        spec = self._spec
-        try:
-            if spec.kind == "udpout":
-                transport, _ = await loop.create_datagram_endpoint(
-                    lambda: _Datagram(self), remote_addr=(spec.host, spec.port)
-                )
-                self._peer = (spec.host, spec.port)
-            else:
-                transport, _ = await loop.create_datagram_endpoint(
-                    lambda: _Datagram(self), local_addr=(spec.host, spec.port)
-                )
-        except OSError as exc:
-            raise LinkError(f"MAVLink {spec}: {exc.strerror or exc}; check the address") from exc
-        self._transport = transport
-        self.socket_closed.clear()
-
-    def send(self, data: bytes) -> bool:
-        if self._transport is None or self._peer is None:
-            return False
-        try:
-            if self._spec.kind == "udpout":
-                self._transport.sendto(data)
-            else:
-                self._transport.sendto(data, self._peer)
-        except OSError:
-            self.send_errors += 1
-            return False
-        return True
-
-    async def close(self) -> None:
-        transport, self._transport = self._transport, None
-        if transport is None:
-            return
-        transport.close()
-        # The port is free once this returns (the next daemon or test binds it at once).
-        with contextlib.suppress(TimeoutError):
-            await asyncio.wait_for(self.socket_closed.wait(), 1.0)
 
 
 def _write_stream(writer: asyncio.StreamWriter | None, data: bytes) -> bool:
@@ -531,7 +421,7 @@ def create_sender_transport(spec: LinkSpec, on_receive: SenderCallback) -> Trans
 
 def _create(spec: LinkSpec, on_receive: SenderCallback, follow_sender: bool) -> Transport:
     if spec.kind in ("udpout", "udpin"):
-        return _UdpTransport(spec, on_receive, follow_sender)
+        return UdpTransport(spec, on_receive, follow_sender)
     if spec.kind == "tcp":
         return _TcpClient(spec, on_receive)
     if spec.kind == "tcpin":

@@ -24,7 +24,7 @@ from avoidd.mavlink.geo import GlobalPoint, valid_lat_lon
 from avoidd.mavlink.link import MavLink
 from avoidd.mavlink.modes import FlightMode, decode_mode
 from avoidd.mavlink.track_history import TrackHistory
-from avoidd.mavlink.trust import Trust
+from avoidd.mavlink.trust import Trust, is_signed
 from avoidd.types import LocalPosition, Rangefinder
 
 logger = logging.getLogger(__name__)
@@ -284,11 +284,17 @@ class Vehicle:
         return position
 
     def _is_autopilot_heartbeat(self, message: mav.Message) -> bool:
+        """A heartbeat that may stand for the autopilot: adopt it, keep the link up.
+
+        An autopilot's component and type; on a signed link also a valid signature (a
+        heartbeat let through unsigned by ``signing.allow_unsigned`` is anyone's).
+        """
         return bool(
             message.get_type() == "HEARTBEAT"
             and message.get_srcComponent() == self.component_id
             and message.autopilot != mav.MAV_AUTOPILOT_INVALID
             and message.type not in _NOT_AUTOPILOTS
+            and (self._link.codec.signature_check is None or is_signed(message))
         )
 
     def _on_heartbeat(self, message: mav.Message, received_ns: int) -> None:
