@@ -289,6 +289,27 @@ def test_link_bench_command_runs_and_writes_json(tmp_path: Path) -> None:
     assert f"received          {report['received_per_s']:.0f} msg/s" in done.stdout
 
 
+def test_link_bench_stranger_counts_a_flood_dropped_unread(tmp_path: Path) -> None:
+    """``bench-link --stranger``: the stream comes from a stranger: counted, never decoded."""
+    out = tmp_path / "stranger.json"
+    command = ["bench-link", "--stranger", "--rate=2000", "--seconds=1", f"--json={out}"]
+    done = subprocess.run(
+        [sys.executable, "-m", "avoidd", "--log-level=ERROR", *command],
+        cwd=REPO,
+        capture_output=True,
+        text=True,
+        timeout=60,
+        check=False,
+    )
+    assert done.returncode == 0, done.stderr
+    report = json.loads(out.read_text())
+    assert report["streams"] == "stranger" and report["parse_errors"] == 0
+    # Only the adopted autopilot's heartbeats were decoded; the flood was counted.
+    assert set(report["received_per_s_by_type"]) == {"HEARTBEAT"}
+    assert report["received_per_s"] > 100.0
+    assert "a stranger's 2000 msg/s, dropped unread" in done.stdout
+
+
 def test_link_bench_asked_streams_come_at_the_configured_ratio(tmp_path: Path) -> None:
     """``bench-link --asked``: avoidd asks the mock for its streams (ATTITUDE 50 Hz,
     LOCAL_POSITION_NED and DISTANCE_SENSOR 10 Hz, SYSTEM_TIME 1 Hz by default) and every one

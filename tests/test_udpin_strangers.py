@@ -58,6 +58,8 @@ async def test_a_stranger_gets_nothing_and_its_garbage_cannot_take_the_link_down
     rng = random.Random(21)
     assert stray.transport is not None
     try:
+        # Once its link is open (it tries to send, and drops: nobody to send to yet).
+        assert await wait_for(lambda: daemon.link.dropped["HEARTBEAT"] >= 1, 20.0)
         # Garbage before anyone else spoke: it does not make the stray the reply address.
         for _ in range(20):
             stray.transport.sendto(_garbage(rng), ("127.0.0.1", port))

@@ -3,6 +3,8 @@
 A mock autopilot in a separate process streams ATTITUDE, LOCAL_POSITION_NED and DISTANCE_SENSOR
 over loopback UDP at the asked total rate; this process receives them with the daemon's own link
 and vehicle code and measures its CPU time (user + system) and event-loop lag over a window.
+With ``stranger`` the link first adopts an autopilot at another address (its heartbeats sent
+from here), so the stream is a stranger's: the figure is what dropping a flood unread costs.
 """
 
 from __future__ import annotations
@@ -35,7 +37,19 @@ def _ignore(severity: int, text: str, key: str | None = None) -> None:
     """An announcer that drops everything (nobody to tell during a benchmark)."""
 
 
-async def run_bench(rate_hz: float, seconds: float, asked: bool = False) -> dict[str, Any]:
+async def _adopted_autopilot(port: int) -> None:
+    """An autopilot's heartbeat twice a second from a socket of its own, until cancelled."""
+    codec = Codec(1, 1)
+    heartbeat = codec.pack(codec.build("HEARTBEAT", 2, 3, 0, 0, 4))  # a quadrotor, ArduPilot
+    with socket.socket(socket.AF_INET, socket.SOCK_DGRAM) as sock:
+        while True:
+            sock.sendto(heartbeat, ("127.0.0.1", port))
+            await asyncio.sleep(0.5)
+
+
+async def run_bench(
+    rate_hz: float, seconds: float, asked: bool = False, stranger: bool = False
+) -> dict[str, Any]:
     """Stream ``rate_hz`` messages per second at this process for ``seconds`` and measure.
 
     Args:
@@ -44,6 +58,8 @@ async def run_bench(rate_hz: float, seconds: float, asked: bool = False) -> dict
         asked: Instead of fixed streams, the mock sends what avoidd asks of it with
             ``MAV_CMD_SET_MESSAGE_INTERVAL`` at the default ``mavlink.streams`` rates, as a
             real autopilot would.
+        stranger: The link has adopted an autopilot at another address first: the stream is
+            a stranger's, counted and dropped unread.
 
     Returns:
         Figures: messages received per second (in all and by type), CPU percent of one core,
@@ -63,17 +79,18 @@ async def run_bench(rate_hz: float, seconds: float, asked: bool = False) -> dict
     link = MavLink(config.link, Codec(1, 196))
     vehicle = Vehicle(link, config, _ignore)
     await link.open()
+    adopted = asyncio.create_task(_adopted_autopilot(port)) if stranger else None
+    if adopted is not None:
+        while link.autopilot_sender is None:
+            await asyncio.sleep(0.01)
     streams = [] if asked else [f"--stream={name}={rate_hz * share:g}" for name, share in _SHARES]
-    mock = await asyncio.create_subprocess_exec(
-        sys.executable,
-        "-m",
-        "avoidd",
-        "--log-level=WARNING",
-        "mock-autopilot",
-        f"udpout:127.0.0.1:{port}",
-        f"--duration={_WARMUP_S + seconds + 2.0}",
-        *streams,
-    )
+    duration_s = _WARMUP_S + seconds + 2.0
+    if stranger:  # a copy of one frame, sent fast (see avoidd.bench.flood)
+        command = ["-m", "avoidd.bench.flood", str(port), f"{rate_hz:g}", f"{duration_s:g}"]
+    else:
+        command = ["-m", "avoidd", "--log-level=WARNING", "mock-autopilot"]
+        command += [f"udpout:127.0.0.1:{port}", f"--duration={duration_s}", *streams]
+    mock = await asyncio.create_subprocess_exec(sys.executable, *command)
     lag = LagMonitor()
     lag_task = asyncio.create_task(lag.run())
     try:
@@ -89,11 +106,11 @@ async def run_bench(rate_hz: float, seconds: float, asked: bool = False) -> dict
             await asyncio.sleep(0.5)
         lag.reset()
         by_type0 = dict(link.received)
-        count0 = sum(link.received.values())
+        count0 = sum(link.received.values()) + _dropped(link)
         cpu0, wall0 = _cpu_s(), time.perf_counter()
         await asyncio.sleep(seconds)
         cpu_s, wall_s = _cpu_s() - cpu0, time.perf_counter() - wall0
-        count = sum(link.received.values()) - count0
+        count = sum(link.received.values()) + _dropped(link) - count0
         by_type = {
             k: v - by_type0.get(k, 0)
             for k, v in sorted(link.received.items())
@@ -101,12 +118,13 @@ async def run_bench(rate_hz: float, seconds: float, asked: bool = False) -> dict
         }
     finally:
         await cancel_task(lag_task)
+        await cancel_task(adopted)
         with contextlib.suppress(ProcessLookupError):
             mock.terminate()
         await mock.wait()
         await link.close()
     return {
-        "streams": "asked" if asked else "fixed",
+        "streams": "asked" if asked else "stranger" if stranger else "fixed",
         "rate_asked_hz": "default streams" if asked else rate_hz,
         "seconds": round(wall_s, 3),
         "received_per_s": round(count / wall_s, 1),
@@ -135,7 +153,14 @@ def format_report(report: dict[str, Any]) -> str:
     )
 
 
+def _dropped(link: MavLink) -> int:
+    """Datagrams of strangers counted and dropped unread so far."""
+    return sum(count.datagrams for count in link.strangers.values())
+
+
 def _asked(report: dict[str, Any]) -> str:
     if report["streams"] == "asked":
         return "streams asked with SET_MESSAGE_INTERVAL at the default rates"
+    if report["streams"] == "stranger":
+        return f"a stranger's {report['rate_asked_hz']:g} msg/s, dropped unread"
     return f"fixed streams of {report['rate_asked_hz']:g} msg/s in all"

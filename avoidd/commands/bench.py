@@ -84,6 +84,12 @@ def configure(name: str, parser: argparse.ArgumentParser) -> None:
             help="instead of fixed streams at --rate, the streams avoidd asks of an autopilot "
             "(ATTITUDE 50 Hz and the rest at the default rates), each with its received rate",
         )
+        parser.add_argument(
+            "--stranger",
+            action="store_true",
+            help="the stream comes from a stranger (an autopilot is adopted at another address "
+            "first): what dropping a flood unread costs",
+        )
         parser.add_argument("--json", type=Path, help="also write the figures as JSON")
         parser.set_defaults(handler=run_link_bench)
 
@@ -156,7 +162,7 @@ def run_link_bench(args: argparse.Namespace) -> int:
     """Measure the CPU of decoding a busy incoming stream and print it."""
     from avoidd.bench.link import format_report, run_bench
 
-    report = asyncio.run(run_bench(args.rate, args.seconds, args.asked))
+    report = asyncio.run(run_bench(args.rate, args.seconds, args.asked, args.stranger))
     print(format_report(report))
     if args.json is not None:
         args.json.write_text(json.dumps(report, indent=2) + "\n")
