@@ -83,27 +83,14 @@ async def run_bench(
     if adopted is not None:
         while link.autopilot_sender is None:
             await asyncio.sleep(0.01)
-    streams = [] if asked else [f"--stream={name}={rate_hz * share:g}" for name, share in _SHARES]
-    duration_s = _WARMUP_S + seconds + 2.0
-    if stranger:  # a copy of one frame, sent fast (see avoidd.bench.flood)
-        command = ["-m", "avoidd.bench.flood", str(port), f"{rate_hz:g}", f"{duration_s:g}"]
-    else:
-        command = ["-m", "avoidd", "--log-level=WARNING", "mock-autopilot"]
-        command += [f"udpout:127.0.0.1:{port}", f"--duration={duration_s}", *streams]
+    command = _sender(port, rate_hz, _WARMUP_S + seconds + 2.0, asked, stranger)
     mock = await asyncio.create_subprocess_exec(sys.executable, *command)
     lag = LagMonitor()
     lag_task = asyncio.create_task(lag.run())
     try:
         await asyncio.sleep(_WARMUP_S)
         if asked:
-            # The daemon ticks the vehicle to send its stream requests; so does this.
-            deadline_s = time.monotonic() + 10.0
-            while not (vehicle.link_up and vehicle.requests and vehicle.streams_acknowledged):
-                if time.monotonic() > deadline_s:
-                    raise RuntimeError("the mock autopilot acknowledged no stream request")
-                vehicle.tick(time.monotonic_ns())
-                await asyncio.sleep(0.05)
-            await asyncio.sleep(0.5)
+            await _acknowledged(vehicle)
         lag.reset()
         by_type0 = dict(link.received)
         count0 = sum(link.received.values()) + _dropped(link)
@@ -151,6 +138,26 @@ def format_report(report: dict[str, Any]) -> str:
             f"({report['max_own_loop_lag_ms']:.1f} ms not waiting for a CPU)",
         ]
     )
+
+
+async def _acknowledged(vehicle: Vehicle) -> None:
+    """Tick the vehicle (as the daemon does) until the mock acknowledged every request."""
+    deadline_s = time.monotonic() + 10.0
+    while not (vehicle.link_up and vehicle.requests and vehicle.streams_acknowledged):
+        if time.monotonic() > deadline_s:
+            raise RuntimeError("the mock autopilot acknowledged no stream request")
+        vehicle.tick(time.monotonic_ns())
+        await asyncio.sleep(0.05)
+    await asyncio.sleep(0.5)
+
+
+def _sender(port: int, rate_hz: float, duration_s: float, asked: bool, stranger: bool) -> list[str]:
+    """The Python arguments of the process that sends: the mock autopilot, or a flood."""
+    if stranger:  # a copy of one frame, sent fast (see avoidd.bench.flood)
+        return ["-m", "avoidd.bench.flood", str(port), f"{rate_hz:g}", f"{duration_s:g}"]
+    streams = [] if asked else [f"--stream={name}={rate_hz * share:g}" for name, share in _SHARES]
+    command = ["-m", "avoidd", "--log-level=WARNING", "mock-autopilot"]
+    return [*command, f"udpout:127.0.0.1:{port}", f"--duration={duration_s}", *streams]
 
 
 def _dropped(link: MavLink) -> int:

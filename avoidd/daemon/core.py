@@ -261,16 +261,7 @@ class Daemon:
             logger.error("%s", exc)
             return 1
         self._started_ns = time.monotonic_ns()
-        mavlink = self.config.mavlink
-        logger.info(
-            "avoidd started: %d head(s) [%s], MAVLink %s as %s/%d%s",
-            len(self.heads),
-            ", ".join(h.name for h in self.heads),
-            mavlink.link,
-            mavlink.system_id,
-            mavlink.component_id,
-            ", signed" if mavlink.signing else "",
-        )
+        self._say_started()
         announcer(mav.MAV_SEVERITY_INFO, "avoidd started")
         previous_threads = cv2.getNumThreads()
         cv2.setNumThreads(self.threads)
@@ -309,6 +300,18 @@ class Daemon:
             cv2.setNumThreads(previous_threads)
         logger.info("avoidd stopped; MAVLink %s", self.link.counters())
         return code
+
+    def _say_started(self) -> None:
+        mavlink = self.config.mavlink
+        logger.info(
+            "avoidd started: %d head(s) [%s], MAVLink %s as %s/%d%s",
+            len(self.heads),
+            ", ".join(h.name for h in self.heads),
+            mavlink.link,
+            mavlink.system_id,
+            mavlink.component_id,
+            ", signed" if mavlink.signing else "",
+        )
 
     def _command(self, message: mav.Message) -> None:
         """A command for avoidd: its sender's signing timestamp is stored before it is acted on.

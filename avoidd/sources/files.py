@@ -16,7 +16,7 @@ import numpy as np
 from avoidd.errors import BrokenFrame, SourceError, SourceExhausted
 from avoidd.fileread import UnreadableFile, read_bounded
 from avoidd.sources.base import Pacer
-from avoidd.sources.imagesize import MAX_IMAGE_PIXELS, image_size
+from avoidd.sources.imagesize import image_size, too_many_pixels
 from avoidd.types import FramePose, Image, StereoFrame, VehicleSample, wrap_deg
 
 logger = logging.getLogger(__name__)
@@ -299,12 +299,9 @@ def read_image(path: Path, seq: int) -> np.ndarray:
         raise BrokenFrame(f"{path}: missing; frame {seq} dropped") from exc
     except UnreadableFile as exc:
         raise BrokenFrame(f"{path}: {exc.reason}; frame {seq} dropped") from None
-    size = image_size(data)
-    if size is not None and size[0] * size[1] > MAX_IMAGE_PIXELS:
-        raise BrokenFrame(
-            f"{path}: {size[0]}x{size[1]} pixels, more than the {MAX_IMAGE_PIXELS / 1e6:.1f} "
-            f"megapixels avoidd reads (is it a camera view?); frame {seq} dropped"
-        )
+    too_large = too_many_pixels(image_size(data))
+    if too_large is not None:
+        raise BrokenFrame(f"{path}: {too_large} (is it a camera view?); frame {seq} dropped")
     suffix = path.suffix.lower()
     ends = {".png": _PNG_END, ".jpg": _JPEG_END, ".jpeg": _JPEG_END}.get(suffix)
     if ends is not None and not data.rstrip(b"\0").endswith(ends):
@@ -337,14 +334,12 @@ class SideBySideVideoSource:
         self._path = path
         self._loop = loop
         self._capture = self._open()
-        width = int(self._capture.get(cv2.CAP_PROP_FRAME_WIDTH) or 0)
-        height = int(self._capture.get(cv2.CAP_PROP_FRAME_HEIGHT) or 0)
-        if width * height > 2 * MAX_IMAGE_PIXELS:
+        props = (cv2.CAP_PROP_FRAME_WIDTH, cv2.CAP_PROP_FRAME_HEIGHT)
+        size = tuple(int(self._capture.get(prop) or 0) for prop in props)
+        too_large = too_many_pixels(size, views=2)
+        if too_large is not None:
             self._capture.release()
-            raise SourceError(
-                f"{path}: frames of {width}x{height} pixels, more than two views of "
-                f"{MAX_IMAGE_PIXELS / 1e6:.1f} megapixels (is it a stereo recording?)"
-            )
+            raise SourceError(f"{path}: frames of {too_large} (is it a stereo recording?)")
         video_fps = float(self._capture.get(cv2.CAP_PROP_FPS) or 0.0)
         self._fps = fps or (video_fps if 0 < video_fps < 1000 else DEFAULT_FPS)
         self._pacer = Pacer(self._fps) if paced else None

@@ -107,3 +107,18 @@ def image_size(data: bytes) -> tuple[int, int] | None:
     if match is not None:
         return int(match.group(1)), int(match.group(2))
     return None
+
+
+def too_many_pixels(size: tuple[int, ...] | None, views: int = 1) -> str | None:
+    """Why an image of ``size`` (width, height) is too large to read, or None if it is not.
+
+    Args:
+        size: Width and height (None: not known, not refused).
+        views: Views side by side in one picture (a side-by-side video frame holds two).
+    """
+    if size is None or size[0] * size[1] <= views * MAX_IMAGE_PIXELS:
+        return None
+    limit = f"{MAX_IMAGE_PIXELS / 1e6:.1f} megapixels" + (
+        f" per view ({views})" if views > 1 else ""
+    )
+    return f"{size[0]}x{size[1]} pixels, more than the {limit} avoidd reads"
