@@ -37,6 +37,7 @@ from avoidd.planner.corrections import (
     with_back_away,
 )
 from avoidd.planner.direction import Direction, Ways
+from avoidd.planner.gaps import GapFollower
 from avoidd.planner.geometry import wrap_rad
 from avoidd.planner.memory import ObstacleMemory
 from avoidd.planner.search import Search
@@ -91,6 +92,7 @@ class Planner:
         self._last_scan_ns = -1
         self._last_decide_ns: int | None = None
         self._back_since_ns: int | None = None
+        self.gaps = GapFollower(0.0)
         self._configure(config)
 
     def _configure(self, config: AvoidanceConfig) -> None:
@@ -114,6 +116,7 @@ class Planner:
             self.view = View(t, margin)
         # New settings in flight: the stages keep what they know (a new admissible set).
         self.direction.enter_m = self.enter_m
+        self.gaps.within_m = 2.0 * self.look_m
         self.direction.clear_admissible()
         self.search.config = config
         self.view.margin_rad = margin
@@ -132,19 +135,33 @@ class Planner:
         """Start over for a new goal (the memory and the back-away's growth are kept)."""
         self.direction.reset()
         self.search.reset()
+        self.gaps.reset()
         self._back_since_ns = None
 
     def observe_scan(
-        self, distance_m: npt.NDArray[np.float32], t_capture_ns: int, pose_at_capture: Pose
+        self,
+        distance_m: npt.NDArray[np.float32],
+        t_capture_ns: int,
+        pose_at_capture: Pose,
+        points_frd_m: npt.NDArray[np.float32] | None = None,
     ) -> None:
-        """Take a fresh merged scan (body bins) with the vehicle's pose at its capture."""
+        """Take a fresh merged scan (body bins) with the vehicle's pose at its capture.
+
+        ``points_frd_m``: the body point each finite bin measured, when the scan has them
+        (the memory places the readings at their bearings).
+        """
         if t_capture_ns <= self._last_scan_ns:
             return
         self._last_scan_ns = t_capture_ns
         self.view.observe(distance_m)
         where = (pose_at_capture.north_m, pose_at_capture.east_m)
         self.memory.add_scan(
-            distance_m, t_capture_ns, where, pose_at_capture.yaw_rad, self.max_range_m
+            distance_m,
+            t_capture_ns,
+            where,
+            pose_at_capture.yaw_rad,
+            self.max_range_m,
+            points_frd_m,
         )
         self.visibility.mark(
             where, pose_at_capture.yaw_rad, distance_m, t_capture_ns, self.max_range_m
@@ -253,18 +270,36 @@ class Planner:
             return self.hold("no path", goal_m, pose)
         around = self.surroundings(pose)
         searching = self.search.dead_end_since_ns is not None
-        ways = self.direction.ways(around, math.atan2(to_east, to_north), goal_m, searching)
-        if self.search.circled(ways.goal_rad, ways.goal_free_m >= goal_m):
+        goal_rad = math.atan2(to_east, to_north)
+        line_m = float(around.free_m(np.array([goal_rad]))[0])
+        blocked = float(around.obstacle_free_m(np.array([goal_rad]))[0]) < goal_m
+        wide_m = 2.0 * (self.clearance_m + t.buffer_at_m(config.max_speed_m_s))
+        sub = self.gaps.subgoal(around, (to_north, to_east), blocked, wide_m, self.visibility)
+        if sub is None:
+            ways = self.direction.ways(around, goal_rad, goal_m, searching)
+        else:
+            ways = self.direction.ways(around, sub.heading_rad, sub.distance_m, searching, 0.0)
+        if self.search.circled(goal_rad, line_m >= goal_m):
             return self.hold("no path", goal_m, pose)
         if ways.headings.size == 0:
-            return self._look_around(now_ns, pose, goal_m, ways.goal_rad)
+            return self._look_around(now_ns, pose, goal_m, goal_rad)
         self.search.found()
-        return self._fly(now_ns, around, ways, goal_m, vertical)
+        stop_m = math.inf if sub is None else sub.stop_m
+        return self._fly(now_ns, around, ways, goal_m, vertical, stop_m)
 
     def _fly(
-        self, now_ns: int, around: Surroundings, ways: Ways, goal_m: float, vertical: float
+        self,
+        now_ns: int,
+        around: Surroundings,
+        ways: Ways,
+        goal_m: float,
+        vertical: float,
+        stop_m: float = math.inf,
     ) -> Decision:
-        """Fly the cheapest way: speed law, view, corrections."""
+        """Fly the cheapest way: speed law, view, corrections.
+
+        ``stop_m``: the vehicle must also be able to stop within this (lining up on a gap).
+        """
         config, t, pose = self.config, self.tuning, around.pose
         clear_m = min(goal_m, self.max_range_m)
         chosen = self.direction.choose(ways, pose.yaw_rad, clear_m)
@@ -281,7 +316,9 @@ class Planner:
         self.direction.previous_rad = way
         speed = min(
             config.max_speed_m_s,
-            stopping_speed_m_s(way_free, config.max_accel_m_s2, self.latency_s(now_ns)),
+            stopping_speed_m_s(
+                min(way_free, stop_m), config.max_accel_m_s2, self.latency_s(now_ns)
+            ),
             math.sqrt(2.0 * config.max_accel_m_s2 * goal_m),
             slow_for,
             drift_speed_limit_m_s(math.hypot(*drifting), config.max_speed_m_s, t),

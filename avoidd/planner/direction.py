@@ -87,15 +87,24 @@ class Direction:
         """The 72 world directions (read-only)."""
         return self._directions
 
-    def ways(self, around: Surroundings, goal_rad: float, goal_m: float, searching: bool) -> Ways:
+    def ways(
+        self,
+        around: Surroundings,
+        goal_rad: float,
+        goal_m: float,
+        searching: bool,
+        goal_buffer_m: float | None = None,
+    ) -> Ways:
         """The admissible ways this cycle (the hysteresis is updated here).
 
         Args:
             around: The vehicle's surroundings.
-            goal_rad: The goal's direction.
+            goal_rad: The goal's direction (or the cycle's point on a gap's axis).
             goal_m: The goal's distance.
             searching: The vehicle is turning to look for a way: only a way toward the goal's
                 side ends the search.
+            goal_buffer_m: The turning buffer of the goal's direction (None: as any other
+                way's; 0 along a gap's axis, which is flown straight).
         """
         t, pose = self.tuning, around.pose
         # Directions are chosen with room to spare for the turn the vehicle takes to follow
@@ -109,7 +118,10 @@ class Direction:
         # kept there, so a corridor wide enough at walking pace stays open at speed.
         along = math.atan2(pose.east_m_s, pose.north_m_s)
         straight = np.abs(wrap_rad(candidates - along)) <= math.radians(t.straight_deg)
-        looked = around.free_m(candidates, np.where(straight, min(buffer, t.buffer_m), buffer))
+        buffers = np.where(straight, min(buffer, t.straight_buffer_m), buffer)
+        if goal_buffer_m is not None:
+            buffers[self._directions.size] = goal_buffer_m
+        looked = around.free_m(candidates, buffers)
         count = self._directions.size
         free, goal_free = looked[:count], float(looked[count])
         gaps_free = looked[count + 1 :]
@@ -122,10 +134,15 @@ class Direction:
         if gaps.size:
             headings = np.concatenate([headings, gaps[gaps_free >= enter]])
             headings_free = np.concatenate([headings_free, gaps_free[gaps_free >= enter]])
+        goal_open = goal_free >= min(goal_m, enter)
+        if goal_buffer_m is not None and goal_open:
+            # A point on a gap's axis: its own direction is a way (no grid direction need
+            # run through a gap barely wider than the clearance).
+            headings = np.concatenate([headings, [goal_rad]])
+            headings_free = np.concatenate([headings_free, [goal_free]])
         keep = np.ones(headings.size, dtype=np.bool_)
         if searching:
             keep &= np.abs(wrap_rad(headings - goal_rad)) < _DEAD_END_GOAL_SIDE_RAD
-        goal_open = goal_free >= min(goal_m, enter)
         if goal_open:
             self.side = 0
             self.side_changes = 0

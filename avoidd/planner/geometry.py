@@ -60,7 +60,7 @@ def gap_headings(offsets_ne: Array, clearance_m: float, within_m: float, most: i
     The 72 directions are 5 degrees apart, so from a few metres out the one line through a gap
     barely wider than the vehicle's clearance may fall between two of them. Sorted by bearing,
     two neighbouring points at least ``2 * clearance_m`` apart leave a gap the vehicle fits
-    through; its middle is a heading worth trying.
+    through (:func:`gap_edges`); its middle is a heading worth trying.
 
     Args:
         offsets_ne: (N, 2) obstacle points relative to the vehicle, north and east (metres).
@@ -71,23 +71,46 @@ def gap_headings(offsets_ne: Array, clearance_m: float, within_m: float, most: i
     Returns:
         (K,) headings in radians, K <= ``most``.
     """
-    if offsets_ne.shape[0] < 2:
+    first, second = gap_edges(offsets_ne, clearance_m, within_m, most)
+    if not first.shape[0]:
         return np.zeros(0)
+    middle = (first + second) / 2.0
+    return np.asarray(np.arctan2(middle[:, 1], middle[:, 0]), np.float64)
+
+
+def gap_edges(
+    offsets_ne: Array, clearance_m: float, within_m: float, most: int = 12
+) -> tuple[Array, Array]:
+    """The two edges of each gap between obstacle points the vehicle's disc fits through.
+
+    As :func:`gap_headings`: neighbours by bearing at least ``2 * clearance_m`` apart, the
+    nearer side within ``within_m``, the nearest first.
+
+    Args:
+        offsets_ne: (N, 2) obstacle points relative to the vehicle, north and east (metres).
+        clearance_m: Vehicle radius plus margin.
+        within_m: Only gaps whose nearer side is this close count.
+        most: At most this many gaps.
+
+    Returns:
+        ``(first, second)``: (K, 2) each, the edge points in bearing order (clockwise).
+    """
+    empty = np.zeros((0, 2))
+    if offsets_ne.shape[0] < 2:
+        return empty, empty
     ranges = np.hypot(offsets_ne[:, 0], offsets_ne[:, 1])
     near = offsets_ne[ranges <= within_m]
     if near.shape[0] < 2:
-        return np.zeros(0)
-    order = np.argsort(np.arctan2(near[:, 1], near[:, 0]))
-    points = near[order]
+        return empty, empty
+    points = near[np.argsort(np.arctan2(near[:, 1], near[:, 0]))]
     following = np.roll(points, -1, axis=0)
     width = np.hypot(*(following - points).T)
-    middle = (points + following) / 2.0
     # Neighbours by bearing with room between them (the wrap-around pair included); a gap
     # wider than a half turn is open space, not a gap.
     cross = points[:, 0] * following[:, 1] - points[:, 1] * following[:, 0]
     fits = (width >= 2.0 * clearance_m) & (cross > 0)
     if not fits.any():
-        return np.zeros(0)
+        return empty, empty
     nearer = np.minimum(np.hypot(*points.T), np.hypot(*following.T))[fits]
-    chosen = middle[fits][np.argsort(nearer)[:most]]
-    return np.asarray(np.arctan2(chosen[:, 1], chosen[:, 0]), np.float64)
+    order = np.argsort(nearer)[:most]
+    return points[fits][order], following[fits][order]

@@ -1,7 +1,9 @@
 """Obstacle memory in the local frame: what the cameras saw, kept while it is out of view.
 
 Each fresh scan adds its readings as points in the autopilot's local frame (north, east), placed
-with the vehicle's position and yaw at the scan's capture time. A reading that later sees past
+with the vehicle's position and yaw at the scan's capture time, each at the bearing of the
+point its bin measured when the scan carries one (else where in the bin the neighbours say,
+:func:`surface_shift_rad`). A reading that later sees past
 a remembered point (a nearer measurement, or clear, in the same direction) removes it; points
 older than the memory time are dropped. Free space is never remembered: a direction nobody
 measured now is unknown, whatever it was.
@@ -57,6 +59,7 @@ class ObstacleMemory:
         north_east_m: tuple[float, float],
         yaw_rad: float,
         max_range_m: float,
+        points_frd_m: npt.NDArray[np.floating] | None = None,
     ) -> None:
         """Take one scan (body bins: 72 distances, NaN unknown, ``inf`` clear).
 
@@ -66,6 +69,12 @@ class ObstacleMemory:
             north_east_m: Vehicle position at capture.
             yaw_rad: Vehicle yaw at capture.
             max_range_m: Range that counts as seen through for a clear bin.
+            points_frd_m: (72, 3) the body point each finite bin measured (NaN elsewhere), or
+                None. A bin's reading is placed at its point's bearing: a bin is 5 degrees
+                wide, 0.65 m at 15 m, and a wall's end placed in the middle of the bin that
+                holds it narrows the gap beside it by that much (a 3.3 m gap looked 2.9 m
+                wide, too narrow to fly, and the edge stays out of a forward view on the way
+                in, so nothing corrected it).
         """
         origin = np.asarray(north_east_m, dtype=np.float64)
         distance = np.asarray(distance_m, dtype=np.float64)
@@ -88,7 +97,7 @@ class ObstacleMemory:
             keep = ~seen_past
             self.north_east, self.t_ns = self.north_east[keep], self.t_ns[keep]
         finite = np.isfinite(distance)
-        bearing = bearing + surface_shift_rad(distance)
+        bearing = bearing + in_bin_rad(distance, points_frd_m)
         if finite.any():
             new = origin + np.stack(
                 [
@@ -145,6 +154,28 @@ class ObstacleMemory:
         ranges_m.flags.writeable = False
         self._near = (points, at, offsets, ranges_m)
         return offsets, ranges_m
+
+
+def in_bin_rad(distance_m: Array, points_frd_m: npt.NDArray[np.floating] | None) -> Array:
+    """Where in its bin each reading lies: its measured point's bearing, else the neighbours'.
+
+    Args:
+        distance_m: The scan's 72 distances (NaN unknown, ``inf`` clear), bin 0 ahead.
+        points_frd_m: (72, 3) body points of the finite bins, or None.
+
+    Returns:
+        (72,) radians to add to each bin's bearing, within half a bin.
+    """
+    shift = surface_shift_rad(distance_m)
+    if points_frd_m is None:
+        return shift
+    points = np.asarray(points_frd_m, dtype=np.float64)
+    measured = np.isfinite(points[:, 0]) & np.isfinite(points[:, 1])
+    measured &= np.hypot(points[:, 0], points[:, 1]) > 0.0
+    body = np.arctan2(points[:, 1], points[:, 0])
+    middle = np.radians(np.arange(SECTOR_COUNT) * SECTOR_WIDTH_DEG)
+    offset = np.clip(wrap_rad(body - middle), -_HALF_BIN_RAD, _HALF_BIN_RAD)
+    return np.where(measured, offset, shift)
 
 
 def surface_shift_rad(distance_m: Array) -> Array:

@@ -131,7 +131,8 @@ class Surroundings:
 
         The nearer of :meth:`obstacle_free_m` and, with unknown directions blocked, where the
         vehicle's corridor reaches ground the cameras have not looked at within the memory
-        time.
+        time (beside the vehicle the corridor is as wide as the vehicle, widening to the
+        clearance ahead: see :mod:`avoidd.planner.visibility`).
         """
         free = self.obstacle_free_m(headings_rad, buffer_m)
         if self.visibility is not None:
@@ -144,6 +145,7 @@ class Surroundings:
                 self.clearance_m,
                 self.look_m,
                 self.seen_since_ns,
+                self.radius_m,
             )
             free = np.minimum(free, seen)
         return free

@@ -45,6 +45,7 @@ class Tuning:
         leave_m: A way stays admissible down to this much free distance: the speed law
             brings the vehicle up to its margin and it stops there, not half a metre short.
         straight_deg: Ways within this of the vehicle's velocity need no turning room.
+        straight_buffer_m: The room kept on them instead.
         goal_snap_deg: A chosen way within this of an open goal direction is the goal's.
         yaw_gain_per_s: Yaw rate per radian of heading error.
         pause_ns: A gap this long between decisions means planning was paused (its timers
@@ -82,8 +83,6 @@ class Tuning:
         drift_slowing: While the positions drift toward a near obstacle, the speed falls by
             this share of the maximum speed per ``back_away_max_m_s`` of drift.
         drift_slowest: The drift never slows the vehicle below this share of its maximum.
-        look_aside_deg: When the way chosen is this far from the best way were unseen ground
-            free, the cameras look at the first unseen part of that best way.
         autopilot_response_s: Time an autopilot's velocity controller takes to act on a new
             setpoint (part of the latency).
         look_margin_m: Beyond the stopping distance at full speed (plus this), nothing unseen
@@ -107,6 +106,7 @@ class Tuning:
     enter_m: float = 1.0
     leave_m: float = 0.4
     straight_deg: float = 5.0
+    straight_buffer_m: float = 0.25
     goal_snap_deg: float = 5.0
     yaw_gain_per_s: float = 2.0
     pause_ns: int = 1_000_000_000
@@ -129,7 +129,6 @@ class Tuning:
     drift_jump_m_s: float = 1.5
     drift_slowing: float = 0.5
     drift_slowest: float = 0.5
-    look_aside_deg: float = 90.0
     autopilot_response_s: float = 0.2
     look_margin_m: float = 1.0
 

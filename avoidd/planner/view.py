@@ -70,17 +70,34 @@ class View:
         """Where to point the cameras: the best way known obstacles leave open.
 
         That is the chosen way unless the way the planner would take, were unseen space free,
-        differs: then the cameras turn there to look. When the chosen way turns more than
-        ``look_aside_deg`` from it (the vehicle is about to back out), they look at the first
-        part of that way's corridor they have not seen instead: at a corridor's turn the near
-        side of the way on lies beside the vehicle, outside a view pointed along it. Going
-        round something with the chosen way in view, they turn toward the goal as far as the
-        view allows (:meth:`offset_rad`).
+        differs: then the cameras turn to the first part of that way's corridor they have not
+        seen (down the way when that is far ahead; at a corridor's turn the near side of the
+        way on lies beside the vehicle, outside a view pointed along it). Going round
+        something with the chosen way in view, they turn toward the goal as far as the view
+        allows (:meth:`offset_rad`).
         """
         look = self._best_open_rad(around, directions, goal_rad, chosen_rad, buffer_m, enter_m)
         if abs(float(wrap_rad(look - chosen_rad))) <= math.radians(SECTOR_WIDTH_DEG):
             look = chosen_rad + self.offset_rad(float(wrap_rad(goal_rad - chosen_rad)))
         return look
+
+    def _first_unseen(self, around: Surroundings, heading_rad: float) -> float | None:
+        """The bearing of the first unseen part of a way known obstacles leave open, if any."""
+        if around.visibility is None:
+            return None
+        pose = around.pose
+        reach_m = min(around.look_m, float(around.obstacle_free_m(np.array([heading_rad]))[0]))
+        unseen = around.visibility.first_unseen(
+            (pose.north_m, pose.east_m),
+            heading_rad,
+            around.clearance_m,
+            reach_m,
+            around.seen_since_ns,
+            around.radius_m,
+        )
+        if unseen is None:
+            return None
+        return math.atan2(unseen[1] - pose.east_m, unseen[0] - pose.north_m)
 
     def _best_open_rad(
         self,
@@ -103,15 +120,10 @@ class View:
         cost += t.mu_heading * np.abs(wrap_rad(headings - pose.yaw_rad))
         pick = int(np.argmin(cost))
         best = float(headings[pick])
-        if abs(float(wrap_rad(best - chosen_rad))) <= math.radians(t.look_aside_deg):
-            return best
-        reach_m = min(around.look_m, float(free[open_ways[pick]]))
-        unseen = around.visibility.first_unseen(
-            (pose.north_m, pose.east_m), best, around.clearance_m, reach_m, around.seen_since_ns
-        )
-        if unseen is None:
-            return best
-        return math.atan2(unseen[1] - pose.east_m, unseen[0] - pose.north_m)
+        # Its first part not looked at: far ahead that is down the way itself, beside the
+        # vehicle (a corridor's turn) it is the flank a view pointed along the way misses.
+        unseen = self._first_unseen(around, best)
+        return best if unseen is None else unseen
 
     def yaw_rate(self, error_rad: float, max_yaw_rate_deg_s: float) -> float:
         """The yaw rate toward a heading ``error_rad`` away, within the configured limit."""

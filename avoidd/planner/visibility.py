@@ -6,6 +6,13 @@ capture time. The corridor the vehicle would sweep along a heading (as wide as r
 margin on each side) is free only as far as every cell of it was seen within the memory time:
 beside the vehicle that is what it saw on its way there, ahead it is what the cameras see now.
 A forward camera thus cannot send the vehicle sideways into what it never looked at.
+
+Right beside the vehicle a forward camera cannot have seen the corridor's full width (at 1 m
+ahead, 1.5 m to the side lies 56 degrees off its axis): there the corridor may be narrower, as
+wide as the vehicle itself (its radius) where it stands, then a wedge of :data:`NEAR_TAPER`
+per metre ahead (30 degrees each side) out to the full clearance. So the margin is kept from what was seen, the radius from
+everything; without that, a vehicle that has just taken off saw no way at all until it had
+turned to look beside itself.
 """
 
 from __future__ import annotations
@@ -18,6 +25,10 @@ from avoidd.types import SECTOR_WIDTH_DEG
 Array = npt.NDArray[np.float64]
 
 _RAYS_PER_BIN = 7
+NEAR_TAPER = 0.58
+"""Beside the vehicle the corridor is the wedge of this half-width per metre ahead (tan 30
+degrees: inside any forward view of 60 degrees or more), at least the vehicle's radius, at
+most its clearance."""
 _NEVER = np.iinfo(np.int64).min // 2
 
 
@@ -106,25 +117,34 @@ class VisibilityGrid:
         clearance_m: float,
         look_m: float,
         since_ns: int,
+        near_half_m: float | None = None,
     ) -> tuple[Array, Array, npt.NDArray[np.bool_]]:
         """The swept corridors' sample points, (K, S, L, 2), and which of them are unseen."""
         origin = np.asarray(north_east_m, dtype=np.float64)
         self._follow(origin)
         along = np.arange(0.0, look_m + clearance_m, self.cell_m)
-        lateral = np.linspace(-clearance_m, clearance_m, 5)
+        half = np.full(along.shape, clearance_m)
+        if near_half_m is not None:
+            half = np.minimum(half, np.maximum(near_half_m, NEAR_TAPER * along))
+        lateral = half[:, None] * np.linspace(-1.0, 1.0, 5)[None, :]  # (S, L)
         unit = np.stack([np.cos(headings_rad), np.sin(headings_rad)], axis=1)  # (K, 2)
         normal = np.stack([-unit[:, 1], unit[:, 0]], axis=1)
         points = (
             origin
             + along[None, :, None, None] * unit[:, None, None, :]
-            + lateral[None, None, :, None] * normal[:, None, None, :]
+            + lateral[None, :, :, None] * normal[:, None, None, :]
         )  # (K, S, L, 2)
         rows, columns, inside = self._index(points)
         unseen = (self.seen_ns[rows, columns] < since_ns) | ~inside
         # The vehicle's own disc (within the clearance of where it stands) is where it is.
-        own = (along[None, :, None] ** 2 + lateral[None, None, :] ** 2) <= clearance_m**2
-        unseen &= ~own
+        own = (along[:, None] ** 2 + lateral**2) <= clearance_m**2
+        unseen &= ~own[None, :, :]
         return along, points, unseen
+
+    def seen_at(self, points_ne: Array, since_ns: int) -> npt.NDArray[np.bool_]:
+        """Whether each point (N, 2: north, east) was looked at since ``since_ns``."""
+        rows, columns, inside = self._index(np.asarray(points_ne, dtype=np.float64))
+        return np.asarray(inside & (self.seen_ns[rows, columns] >= since_ns))
 
     def seen_distance(
         self,
@@ -133,6 +153,7 @@ class VisibilityGrid:
         clearance_m: float,
         look_m: float,
         since_ns: int,
+        near_half_m: float | None = None,
     ) -> Array:
         """How far along each heading the swept corridor was all seen since ``since_ns``.
 
@@ -142,11 +163,16 @@ class VisibilityGrid:
             clearance_m: Half-width of the corridor (radius plus margin).
             look_m: How far to look (beyond it: ``inf``).
             since_ns: Cells seen before this are unknown.
+            near_half_m: The corridor's half-width where the vehicle stands (its radius),
+                then the wedge of :data:`NEAR_TAPER` per metre, up to ``clearance_m``; None:
+                the full clearance throughout.
 
         Returns:
             (K,) distances the vehicle can go before its disc reaches an unseen cell.
         """
-        along, _, unseen = self._unseen(north_east_m, headings_rad, clearance_m, look_m, since_ns)
+        along, _, unseen = self._unseen(
+            north_east_m, headings_rad, clearance_m, look_m, since_ns, near_half_m
+        )
         first = np.argmax(unseen.any(axis=2), axis=1)
         blocked = unseen.any(axis=(1, 2))
         distance = np.where(blocked, np.maximum(along[first] - clearance_m, 0.0), np.inf)
@@ -159,6 +185,7 @@ class VisibilityGrid:
         clearance_m: float,
         look_m: float,
         since_ns: int,
+        near_half_m: float | None = None,
     ) -> tuple[float, float] | None:
         """Where the swept corridor along one heading first reaches an unseen cell.
 
@@ -170,7 +197,7 @@ class VisibilityGrid:
             corridor was all seen.
         """
         _, points, unseen = self._unseen(
-            north_east_m, np.array([heading_rad]), clearance_m, look_m, since_ns
+            north_east_m, np.array([heading_rad]), clearance_m, look_m, since_ns, near_half_m
         )
         row = unseen[0].any(axis=1)
         if not row.any():

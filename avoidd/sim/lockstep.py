@@ -139,7 +139,7 @@ class LockstepRun:
 
     def _oracle(self, covered: npt.NDArray[np.bool_], state: VehicleState, t_ns: int) -> SectorScan:
         north, east, _ = (float(v) for v in state.position_m)
-        distance = self.world.oracle_scan(
+        distance, points = self.world.oracle_scan(
             north,
             east,
             state.altitude_m,
@@ -149,7 +149,7 @@ class LockstepRun:
             t_s=t_ns / 1e9,
             band_m=ORACLE_BAND_M,
         )
-        return SectorScan(t_ns, distance)
+        return SectorScan(t_ns, distance, points)
 
     def _position(self, t_ns: int) -> LocalPosition:
         """The vehicle's position report now (also kept for the track velocity)."""

@@ -146,7 +146,7 @@ class World:
         rays_per_bin: int = 5,
         t_s: float = 0.0,
         band_m: tuple[float, float] = (0.0, 0.0),
-    ) -> npt.NDArray[np.float32]:
+    ) -> tuple[npt.NDArray[np.float32], npt.NDArray[np.float32]]:
         """Exact 72-bin scan (body bins): nearest obstacle per bin, ``inf`` clear, NaN unseen.
 
         Args:
@@ -160,12 +160,26 @@ class World:
             t_s: The time (where moving obstacles are).
             band_m: Heights below and above the vehicle within which obstacles count (the
                 perception's height band).
+
+        Returns:
+            The distances, and (72, 3) the body point (FRD, level) of each finite bin's
+            nearest ray, NaN elsewhere, as a head's scan reports them (the planner's memory
+            places each reading at its point's bearing).
         """
         offsets = (np.arange(rays_per_bin) + 0.5) / rays_per_bin - 0.5
         body = (np.arange(SECTOR_COUNT)[:, None] + offsets[None, :]) * SECTOR_WIDTH_DEG
         headings = yaw_rad + np.radians(body.ravel())
         distance = self.ray_distances(north_m, east_m, altitude_m, headings, t_s, band_m)
-        nearest = distance.reshape(SECTOR_COUNT, rays_per_bin).min(axis=1)
+        per_ray = distance.reshape(SECTOR_COUNT, rays_per_bin)
+        nearest_ray = np.argmin(per_ray, axis=1)
+        rows = np.arange(SECTOR_COUNT)
+        nearest = per_ray[rows, nearest_ray]
         scan = np.where(nearest < max_range_m, nearest, np.inf).astype(np.float32)
         scan[~covered] = np.nan
-        return scan
+        bearing = np.radians(body[rows, nearest_ray])
+        finite = np.isfinite(scan)
+        points = np.full((SECTOR_COUNT, 3), np.nan, dtype=np.float32)
+        points[finite, 0] = scan[finite] * np.cos(bearing[finite])
+        points[finite, 1] = scan[finite] * np.sin(bearing[finite])
+        points[finite, 2] = 0.0
+        return scan, points
