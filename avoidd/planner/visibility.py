@@ -10,9 +10,9 @@ A forward camera thus cannot send the vehicle sideways into what it never looked
 Right beside the vehicle a forward camera cannot have seen the corridor's full width (at 1 m
 ahead, 1.5 m to the side lies 56 degrees off its axis): there the corridor may be narrower, as
 wide as the vehicle itself (its radius) where it stands, then a wedge of :data:`NEAR_TAPER`
-per metre ahead (30 degrees each side) out to the full clearance. So the margin is kept from what was seen, the radius from
-everything; without that, a vehicle that has just taken off saw no way at all until it had
-turned to look beside itself.
+per metre ahead (30 degrees each side) out to the full clearance. So the margin is kept from
+what was seen, the radius from everything; without that, a vehicle that has just taken off saw
+no way at all until it had turned to look beside itself.
 """
 
 from __future__ import annotations
