@@ -315,3 +315,12 @@ class Flow:
 
     def __str__(self) -> str:
         return f"{self.rate_hz:.1f} Hz, longest gap {self.longest_gap_s:.3f} s"
+
+
+def elsewhere() -> None:
+    """``preexec_fn`` of a process that stands for another machine (a flooder, web clients).
+
+    Niced, so that on a loaded machine it takes the CPU left over rather than the daemon's
+    share: on a vehicle the stranger's flood or the viewers' browsers run on other computers.
+    """
+    os.nice(10)

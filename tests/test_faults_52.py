@@ -47,7 +47,15 @@ from pathlib import Path
 
 from avoidd.mavlink import codec as mav
 from avoidd.mavlink.mock_autopilot import MockAutopilot
-from tests.helpers import REPO, Flow, free_udp_port, start_hub, synthetic_config, wait_for
+from tests.helpers import (
+    REPO,
+    Flow,
+    elsewhere,
+    free_udp_port,
+    start_hub,
+    synthetic_config,
+    wait_for,
+)
 from tests.helpers import start_daemon as start
 from tests.helpers import stop_daemon as stop
 from tests.test_faults import _write_pairs
@@ -117,7 +125,14 @@ async def test_1100_idle_connections_under_1024_descriptors_leave_the_data_flowi
         # Another process (this one's loop hears the autopilot): 1,100 connections, opened
         # once each and left idle for 5 s, as clients that connect and say nothing.
         idle = await asyncio.create_subprocess_exec(
-            sys.executable, "-c", _IDLE, str(view_port), "1100", "5", stdout=subprocess.PIPE
+            sys.executable,
+            "-c",
+            _IDLE,
+            str(view_port),
+            "1100",
+            "5",
+            stdout=subprocess.PIPE,
+            preexec_fn=elsewhere,
         )
         out, _ = await asyncio.wait_for(idle.communicate(), 120.0)
         end_ns = time.monotonic_ns()
@@ -200,6 +215,7 @@ async def test_50_viewers_for_10_s_leave_no_gap_in_obstacle_distance(tmp_path: P
             "50",
             "10",
             stdout=subprocess.PIPE,
+            preexec_fn=elsewhere,
         )
         out, _ = await asyncio.wait_for(viewers.communicate(), 60.0)
         end_ns = time.monotonic_ns()
