@@ -22,6 +22,7 @@ from avoidd.types import Image
 if TYPE_CHECKING:
     from avoidd.daemon.core import Daemon
     from avoidd.daemon.head import Head
+    from avoidd.pipeline import HeadResult
 
 _STALE_SEND_NS = 500_000_000  # both autopilots drop the data 0.5 s after the last message
 
@@ -43,12 +44,18 @@ class EncodeCounter:
             self.seconds += seconds
 
 
+Snapshot = tuple[Hashable, Callable[[], Image | None]]
+"""What a stream shows now: a cheap key that changes whenever the picture would, and the
+drawing of exactly that state (drawn later, in a worker thread, from what was taken now)."""
+
+
 class Stream:
     """One picture that viewers poll: redrawn only when its key changed.
 
     Args:
-        key: Cheap; changes whenever the picture would (None: nothing to show yet).
-        draw: Draws the picture (called in a worker thread).
+        snapshot: The state to show now (None: nothing to show yet). The picture is drawn
+            from the state taken with its key: drawn from whatever is newest by the time a
+            worker gets to it, a picture could be the previous key's once more.
         quality: JPEG quality.
         counter: Counts each encoding.
         pool: The worker threads that draw (None: asyncio's default ones).
@@ -56,14 +63,12 @@ class Stream:
 
     def __init__(
         self,
-        key: Callable[[], Hashable | None],
-        draw: Callable[[], Image | None],
+        snapshot: Callable[[], Snapshot | None],
         quality: int,
         counter: EncodeCounter,
         pool: Executor | None = None,
     ) -> None:
-        self._key = key
-        self._draw = draw
+        self._snapshot = snapshot
         self._quality = quality
         self._counter = counter
         self._pool = pool
@@ -71,9 +76,9 @@ class Stream:
         self._cached_key: Hashable | None = None
         self._cached: bytes | None = None
 
-    def _encode(self) -> bytes | None:
+    def _encode(self, draw: Callable[[], Image | None]) -> bytes | None:
         start = time.thread_time()  # CPU of this worker thread: what drawing costs
-        image = self._draw()
+        image = draw()
         if image is None:
             return None
         data = render.encode_jpeg(image, self._quality)
@@ -82,22 +87,23 @@ class Stream:
 
     async def jpeg(self) -> bytes | None:
         """The current picture as JPEG (None while there is nothing to show)."""
-        key = self._key()
-        if key is None:
+        taken = self._snapshot()
+        if taken is None:
             return None
+        key, draw = taken
         async with self._lock:
             if key != self._cached_key or self._cached is None:
                 loop = asyncio.get_running_loop()
-                data = await loop.run_in_executor(self._pool, self._encode)
+                data = await loop.run_in_executor(self._pool, self._encode, draw)
                 if data is None:
                     return None
                 self._cached_key, self._cached = key, data
             return self._cached
 
 
-def head_picture(head: Head, max_range_m: float) -> Image | None:
-    """One head's latest frame: the boxed left view next to the coloured depth map."""
-    latest = head.latest
+def head_picture(head: Head, max_range_m: float, latest: HeadResult | None = None) -> Image | None:
+    """One head's frame (its latest by default): the boxed left view beside the depth map."""
+    latest = head.latest if latest is None else latest
     if latest is None or latest.left_view is None:
         return None
     depth = latest.filled_depth_m if latest.filled_depth_m is not None else latest.depth_m
@@ -124,11 +130,13 @@ def head_stream(
 ) -> Stream:
     """The stream of :func:`head_picture` (a new picture with each processed frame)."""
 
-    def key() -> Hashable | None:
+    def snapshot() -> Snapshot | None:
         latest = head.latest
-        return None if latest is None else (latest.seq, latest.t_capture_ns)
+        if latest is None:
+            return None
+        return (latest.seq, latest.t_capture_ns), lambda: head_picture(head, max_range_m, latest)
 
-    return Stream(key, lambda: head_picture(head, max_range_m), quality, counter, pool)
+    return Stream(snapshot, quality, counter, pool)
 
 
 def planner_bearings(daemon: Daemon) -> tuple[float | None, float | None]:
@@ -189,20 +197,14 @@ def polar_stream(
 ) -> Stream:
     """The stream of the sent scan with the planner's arrows and state."""
 
-    def status() -> str:
-        _, sent_ns = sent_scan(daemon)
+    def snapshot() -> Snapshot:
+        scan, sent_ns = sent_scan(daemon)
         withheld = daemon.outputs.withheld if daemon.outputs is not None else 0
         planner = daemon.avoidance.summary() if daemon.avoidance is not None else None
-        return polar_status(sent_ns, time.monotonic_ns(), withheld, planner)
-
-    def key() -> Hashable | None:
-        # The content, not the time: a steady scene is drawn once, not at every message.
-        scan, _ = sent_scan(daemon)
-        return (scan, status(), planner_bearings(daemon))
-
-    def draw() -> Image:
-        scan, _ = sent_scan(daemon)
+        status = polar_status(sent_ns, time.monotonic_ns(), withheld, planner)
         goal_deg, direction_deg = planner_bearings(daemon)
-        return render.polar_panel(scan, 480, status(), goal_deg, direction_deg)
+        # The content, not the time: a steady scene is drawn once, not at every message.
+        key = (scan, status, (goal_deg, direction_deg))
+        return key, lambda: render.polar_panel(scan, 480, status, goal_deg, direction_deg)
 
-    return Stream(key, draw, quality, counter, pool)
+    return Stream(snapshot, quality, counter, pool)
