@@ -293,13 +293,16 @@ class Flow:
 
     rate_hz: float
     longest_gap_s: float
+    longest_gap_at_s: float = math.nan
+    """When the longest gap began, from the start of the window."""
 
     @classmethod
     def of(cls, autopilot: Any, start_ns: int, end_ns: int) -> Flow:
         times = obstacle_distance_times(autopilot, start_ns, end_ns)
-        gaps = [b - a for a, b in itertools.pairwise(times)]
+        gaps = [(b - a, a) for a, b in itertools.pairwise(times)]
         window_s = max((end_ns - start_ns) / 1e9, 1e-9)
-        return cls(len(times) / window_s, max(gaps, default=math.inf))
+        gap_s, at_s = max(gaps, default=(math.inf, math.nan))
+        return cls(len(times) / window_s, gap_s, at_s - start_ns / 1e9)
 
     def kept_up_with(self, control: Flow) -> bool:
         """Whether this window's flow is as good as a control window's on the same machine.
@@ -314,7 +317,10 @@ class Flow:
         return self.rate_hz >= 0.6 * control.rate_hz and self.longest_gap_s <= gap_bound_s
 
     def __str__(self) -> str:
-        return f"{self.rate_hz:.1f} Hz, longest gap {self.longest_gap_s:.3f} s"
+        return (
+            f"{self.rate_hz:.1f} Hz, longest gap {self.longest_gap_s:.3f} s "
+            f"(at {self.longest_gap_at_s:.1f} s)"
+        )
 
 
 def elsewhere() -> None:

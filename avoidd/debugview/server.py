@@ -25,7 +25,6 @@ from aiohttp import web
 from prometheus_client import CONTENT_TYPE_LATEST, CollectorRegistry, generate_latest
 
 from avoidd.config import DebugServerConfig
-from avoidd.daemon.head import lower_thread_priority
 from avoidd.debugview import metrics, views
 from avoidd.debugview.gate import ConnectionGate, host_allowed
 from avoidd.debugview.page import page_html
@@ -39,8 +38,6 @@ logger = logging.getLogger(__name__)
 _BOUNDARY = "avoiddframe"
 _RATE_WINDOW_NS = 1_000_000_000
 _RETRY_BIND_S = 10.0
-DRAW_NICE = 10
-"""Nice steps added to the thread that draws the view's pictures."""
 _KEEPALIVE_S = 10.0
 """An idle kept-alive connection is closed after this long (aiohttp's default is 75 s)."""
 
@@ -71,14 +68,11 @@ class DebugServer:
         self.viewers = 0
         self.gate: ConnectionGate | None = None
         self.refused_hosts = 0
-        # One thread draws every picture, niced: under load the vision threads and the event
-        # loop (which sends OBSTACLE_DISTANCE) go first.
-        self._draw_pool = ThreadPoolExecutor(
-            1,
-            thread_name_prefix="debugview-draw",
-            initializer=lower_thread_priority,
-            initargs=(DRAW_NICE,),
-        )
+        # One thread of its own draws every picture: however many streams are watched, the
+        # view never draws two at once nor takes asyncio's default threads. (Niced, it was no
+        # better: 50 viewers beside two busy loops gave the same gaps, and a niced thread
+        # holding the interpreter lock makes the others wait while it waits for a CPU.)
+        self._draw_pool = ThreadPoolExecutor(1, thread_name_prefix="debugview-draw")
         self._streams: dict[str, views.Stream] = {}
         self._previous: DaemonStats | None = None
         self._closing = False
