@@ -797,10 +797,11 @@ def test_at_a_corridors_turn_the_camera_looks_at_the_near_side_of_the_way_on() -
     # At a corridor's turn, a wall 2 m ahead (north): the vehicle looked all round but at its
     # south-west, and its forward camera (+-20 degrees) looks down the way on to the west (the
     # goal's way), whose south flank lies beside the vehicle, outside that view: that way is
-    # open only as far as its corridor was seen (as wide as the vehicle right beside it, the
-    # clearance 2 m on, and that part lies at 235-250 degrees).
-    everywhere_but = np.full(SECTOR_COUNT, np.inf, dtype=np.float32)
-    everywhere_but[36:48] = np.nan  # bearings 180-235 degrees
+    # open only as far as its corridor was seen (a 30-degree wedge each side right beside the
+    # vehicle, the clearance 2.6 m on: that part lies at 240-250 degrees).
+    everywhere_but = np.full(SECTOR_COUNT, np.nan, dtype=np.float32)
+    everywhere_but[:36] = np.inf
+    everywhere_but[50:] = np.inf  # all but bearings 180-247.5 degrees
     planner.observe_scan(_wall_north_2m(everywhere_but, 0.0), int(0.5 * S), _pose(0.5))
     west = -math.pi / 2
     ahead = _wall_north_2m(_scan({}, range(-4, 5)), -90.0)

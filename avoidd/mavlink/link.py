@@ -314,6 +314,12 @@ class MavLink:
         self._window_senders = set()
         self._summary_ns = now_ns
 
+    def _signature_refused(self) -> dict[str, int]:
+        check = self.codec.signature_check
+        if check is None:
+            return {}
+        return {"mismatch": check.mismatches, "replay": check.replays, "stale": check.stale}
+
     def counters(self) -> dict[str, object]:
         """Counters for logs and tests: sent/received/dropped by type and error counts."""
         return {
@@ -322,6 +328,8 @@ class MavLink:
             "dropped": dict(self.dropped),
             "parse_errors": self.parse_errors,
             "signature_rejects": self.signature_rejects,
+            # Why signed frames were refused (avoidd's own check: mismatch, replay, stale).
+            "signature_refused": self._signature_refused(),
             "handler_errors": self.handler_errors,
             "strangers": {name: vars(count) for name, count in self.strangers.items()},
             "over_budget": self.budget.dropped,

@@ -271,7 +271,6 @@ class Planner:
         around = self.surroundings(pose)
         searching = self.search.dead_end_since_ns is not None
         goal_rad = math.atan2(to_east, to_north)
-        line_m = float(around.free_m(np.array([goal_rad]))[0])
         blocked = float(around.obstacle_free_m(np.array([goal_rad]))[0]) < goal_m
         wide_m = 2.0 * (self.clearance_m + t.buffer_at_m(config.max_speed_m_s))
         sub = self.gaps.subgoal(around, (to_north, to_east), blocked, wide_m, self.visibility)
@@ -279,6 +278,7 @@ class Planner:
             ways = self.direction.ways(around, goal_rad, goal_m, searching)
         else:
             ways = self.direction.ways(around, sub.heading_rad, sub.distance_m, searching, 0.0)
+        line_m = ways.goal_free_m if sub is None else float(around.free_m(np.array([goal_rad]))[0])
         if self.search.circled(goal_rad, line_m >= goal_m):
             return self.hold("no path", goal_m, pose)
         if ways.headings.size == 0:

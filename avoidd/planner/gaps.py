@@ -102,7 +102,10 @@ class SubGoal:
 
 
 def find_gaps(
-    around: Surroundings, within_m: float, seen: VisibilityGrid | None = None
+    around: Surroundings,
+    within_m: float,
+    seen: VisibilityGrid | None = None,
+    narrower_m: float = math.inf,
 ) -> list[Gap]:
     """The gaps in a barrier the vehicle's disc fits through, among the points within range.
 
@@ -111,6 +114,7 @@ def find_gaps(
     (a wall with an opening, or beside a wall's end; not the space between two poles), and,
     with ``seen``,
     through which the cameras looked (not a stretch of wall between two views' edges).
+    Only gaps narrower than ``narrower_m`` are checked and returned.
     """
     first, second = gap_edges(around.offsets, around.clearance_m, within_m)
     gaps = []
@@ -118,6 +122,8 @@ def find_gaps(
         middle = (a + b) / 2.0
         line = b - a
         width = float(np.hypot(*line))
+        if width >= narrower_m:
+            continue
         axis = np.array([line[1], -line[0]]) / width
         if float(axis @ middle) < 0.0:
             axis = -axis
@@ -230,7 +236,7 @@ class GapFollower:
         pose = around.pose
         goal = np.asarray(goal_ne, dtype=np.float64)
         best: tuple[float, Gap] | None = None
-        for gap in find_gaps(around, _SEARCH_M, seen):
+        for gap in find_gaps(around, _SEARCH_M, seen, wide_m):
             # Lining up takes room: a gap farther off the vehicle's way is taken from farther.
             if 2.0 * gap.half_width_m >= wide_m or gap.distance_m > self.within_m + gap.lateral_m:
                 continue
