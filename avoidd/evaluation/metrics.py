@@ -132,12 +132,14 @@ class Details:
             read too far (disparity too small) by more than 2 px, percent of the band's
             estimates that have ground truth.
         rest_too_far: The same right of the band.
+        band_density: Pixels of the band with ground truth that have an estimate (percent).
     """
 
     whole_px: float
     fine_err: float
     band_too_far: float
     rest_too_far: float
+    band_density: float = float("nan")
 
 
 def details(estimate: FloatArray, truth: FloatArray, band_px: int) -> Details:
@@ -145,7 +147,8 @@ def details(estimate: FloatArray, truth: FloatArray, band_px: int) -> Details:
     valid = np.isfinite(estimate)
     values = estimate[valid]
     whole = np.abs(values - np.round(values)) < 1.0 / 32.0
-    have = valid & np.isfinite(truth)
+    known = np.isfinite(truth)
+    have = valid & known
     error = estimate - truth
     fine = np.abs(error[have]) <= 1.0
     band = np.zeros(truth.shape, dtype=bool)
@@ -162,6 +165,9 @@ def details(estimate: FloatArray, truth: FloatArray, band_px: int) -> Details:
         fine_err=float(np.abs(error[have][fine]).mean()) if fine.any() else float("nan"),
         band_too_far=too_far(band),
         rest_too_far=too_far(~band),
+        band_density=(
+            100.0 * float(valid[band & known].mean()) if (band & known).any() else float("nan")
+        ),
     )
 
 
@@ -174,5 +180,8 @@ def mean_details(all_details: list[Details]) -> Details:
         return float(values.mean()) if values.size else float("nan")
 
     return Details(
-        *(mean(name) for name in ("whole_px", "fine_err", "band_too_far", "rest_too_far"))
+        *(
+            mean(name)
+            for name in ("whole_px", "fine_err", "band_too_far", "rest_too_far", "band_density")
+        )
     )

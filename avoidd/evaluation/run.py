@@ -272,14 +272,18 @@ def format_details(runs: list[Run]) -> str:
     lines = [
         "means over scenes: estimates on a whole pixel (%; 6.25 if spread evenly over 1/16 "
         "steps); mean error of those within 1 px of the truth (px); estimates too far by more "
-        "than 2 px in the left border band and right of it (%)",
-        f"{'matcher':<14} {'whole%':>7} {'fine px':>8} {'band far%':>10} {'rest far%':>10}",
+        "than 2 px in the left border band (columns < ndisp) and right of it (% of the "
+        "estimates there with ground truth); the band's density (% of its pixels with ground "
+        "truth)",
+        f"{'matcher':<14} {'whole%':>7} {'fine px':>8} {'band far%':>10} {'rest far%':>10} "
+        f"{'band dens%':>11}",
     ]
     for run in runs:
         d = mean_details(run.details)
         band = f"{d.band_too_far:10.1f}" if np.isfinite(d.band_too_far) else f"{'-':>10}"
         lines.append(
-            f"{run.matcher:<14} {d.whole_px:7.1f} {d.fine_err:8.3f} {band} {d.rest_too_far:10.1f}"
+            f"{run.matcher:<14} {d.whole_px:7.1f} {d.fine_err:8.3f} {band} {d.rest_too_far:10.1f} "
+            f"{d.band_density:11.1f}"
         )
     return "\n".join(lines)
 

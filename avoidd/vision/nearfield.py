@@ -102,7 +102,10 @@ class NearField:
                 num_disparities=config.num_disparities,
                 block_size=config.block_size,
                 pad_left=True,
-            )
+            ),
+            # Only readings nearer than the main range are taken from this map: there an
+            # unconfirmed band reading errs on the near side, and dropping it would not.
+            confirm=False,
         )
 
     @property

@@ -6,7 +6,7 @@ import cv2
 
 from avoidd.config import SadConfig
 from avoidd.types import BoolArray, FloatArray, Image
-from avoidd.vision.matchers.border import run_opencv_matcher
+from avoidd.vision.matchers.border import confirm_band, run_opencv_matcher
 
 _PREFILTERS = {
     "xsobel": cv2.StereoBM_PREFILTER_XSOBEL,
@@ -42,4 +42,7 @@ class SadMatcher:
 
     def compute(self, left: Image, right: Image) -> FloatArray:
         """Match a rectified grey pair; see :class:`avoidd.vision.matchers.base.Matcher`."""
-        return run_opencv_matcher(self._bm, left, right, self._pad, 0)
+        disparity = run_opencv_matcher(self._bm, left, right, self._pad, 0)
+        if self._pad:  # the padded band keeps what the right view confirms, as for SGBM
+            confirm_band(left, right, disparity, self._num_disparities)
+        return disparity

@@ -6,7 +6,7 @@ import cv2
 
 from avoidd.config import SgbmConfig
 from avoidd.types import BoolArray, FloatArray, Image
-from avoidd.vision.matchers.border import run_opencv_matcher
+from avoidd.vision.matchers.border import confirm_band, run_opencv_matcher
 
 _MODES = {
     "sgbm": cv2.StereoSGBM_MODE_SGBM,
@@ -19,13 +19,21 @@ _MODES = {
 class SgbmMatcher:
     """OpenCV StereoSGBM on grey images; invalid pixels become NaN.
 
+    With ``pad_left`` the left border band keeps only the readings the right view confirms
+    (:func:`~avoidd.vision.matchers.border.confirm_band`): the rest read too far far more
+    often than the pixels right of the band (docs/perception.md, "The left border band").
+
     Args:
         config: Matcher parameters; ``p1``/``p2`` default to 8 and 64 times block_size squared.
+        confirm: Confirm the padded band (default). The near-field pass turns it off: it
+            takes from its coarse map only readings nearer than the main range, and an
+            unconfirmed nearer reading there is the safe side (dropping it would not be).
     """
 
     last_filled: BoolArray | None = None  # every value is measured
 
-    def __init__(self, config: SgbmConfig) -> None:
+    def __init__(self, config: SgbmConfig, *, confirm: bool = True) -> None:
+        self._confirm = confirm and config.pad_left
         area = config.block_size * config.block_size
         self._min_disparity = config.min_disparity
         self._num_disparities = config.num_disparities
@@ -51,4 +59,7 @@ class SgbmMatcher:
 
     def compute(self, left: Image, right: Image) -> FloatArray:
         """Match a rectified grey pair; see :class:`avoidd.vision.matchers.base.Matcher`."""
-        return run_opencv_matcher(self._sgbm, left, right, self._pad, self._min_disparity)
+        disparity = run_opencv_matcher(self._sgbm, left, right, self._pad, self._min_disparity)
+        if self._confirm:
+            confirm_band(left, right, disparity, self._num_disparities, self._min_disparity)
+        return disparity
