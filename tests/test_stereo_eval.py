@@ -278,17 +278,20 @@ def test_eval_on_middlebury_2014_beats_the_opencv_baseline(data_dir: Path) -> No
     # Regression bound on the baseline itself (measured 33.5% bad-2 at 75.6% density): bare
     # OpenCV SGBM scored as before, so the comparisons below compare against the same thing.
     assert 31.0 <= baseline.bad2 <= 36.0 and 73.0 <= baseline.density <= 78.0
-    # The target: at least 20% better bad-2, at no lower density (measured 25.8% at 86.0%).
-    assert ours.bad2 <= 0.8 * baseline.bad2, (ours, baseline)
+    # Better bad-2 at no lower density. The target was 20% better (25.8% at 86.0%), but part
+    # of that lead was left-border-band readings too far (issue 53): the band now keeps only
+    # readings the right view confirms, 27.2% at 83.6%, 19% better (docs/perception.md).
+    assert ours.bad2 <= 0.83 * baseline.bad2, (ours, baseline)
     assert ours.density >= baseline.density
-    assert ours.bad2 <= 27.0 and ours.density >= 84.0  # regression bound
+    assert ours.bad2 <= 27.6 and ours.density >= 83.0  # regression bound
     assert sad.bad2 <= 53.0 and sad.density >= 50.0  # regression bound (measured 49.5 at 54.1)
     assert census.bad2 < sad.bad2 - 10.0  # census is the more accurate (measured 36.4 vs 49.5)
     assert census.bad2 <= 38.5 and census.density >= 67.0  # regression bound (36.4 at 69.2)
     # The paper's hybrid, between census and SAD: regression bound (measured 44.9 at 62.1).
     assert segment.bad2 <= 48.0 and segment.density >= 59.0
-    # Regression bound on depth off by more than 10% (measured 20.5).
-    assert ours.depth_bad10 is not None and ours.depth_bad10 <= 22.0
+    # Regression bound on depth off by more than 10% (measured 20.5; 22.3 since the band keeps
+    # only confirmed readings: unconfirmed ones now count as missing).
+    assert ours.depth_bad10 is not None and ours.depth_bad10 <= 23.0
     assert math.isfinite(ours.avgerr)
 
 

@@ -10,6 +10,7 @@ from pathlib import Path
 from avoidd.commands import EXIT_CONFIG, EXIT_OK
 from avoidd.errors import ConfigError
 from avoidd.evaluation.edges import edge_suite, format_edges, run_edge_case
+from avoidd.evaluation.holes import SUITES, format_holes, hole_suite, run_hole_case
 from avoidd.evaluation.metrics import REGIONS
 from avoidd.evaluation.near import format_near, near_suite, run_near_case
 from avoidd.evaluation.run import evaluate, format_details, format_runs
@@ -78,6 +79,13 @@ def configure(name: str, parser: argparse.ArgumentParser) -> None:
         parser.add_argument(
             "--edge-scenes", type=int, default=24, help="silhouettes across bin boundaries"
         )
+        parser.add_argument(
+            "--hole-scenes",
+            type=int,
+            default=24,
+            help="scenes per hole suite (walls, pole rows, clutter): bins over a surface that "
+            "read unknown or too far",
+        )
         parser.set_defaults(handler=run_eval_perception)
 
 
@@ -123,7 +131,9 @@ def run_eval_perception(args: argparse.Namespace) -> int:
     cases = scenes + contact_suite(args.contact_scenes)
     near_cases = near_suite(args.near_scenes) if args.near_scenes else []
     edge_cases = edge_suite(args.edge_scenes) if args.edge_scenes else []
-    with Progress(len(cases) + len(near_cases) + len(edge_cases)) as progress:
+    hole_cases = [(name, case) for name in SUITES for case in hole_suite(name, args.hole_scenes)]
+    total = len(cases) + len(near_cases) + len(edge_cases) + len(hole_cases)
+    with Progress(total) as progress:
         results = []
         for case in cases:
             results.append(run_case(case))
@@ -136,6 +146,10 @@ def run_eval_perception(args: argparse.Namespace) -> int:
         for case in edge_cases:
             edges.append(run_edge_case(case))
             progress.step(f"edge {case.name}")
+        holes = []
+        for name, case in hole_cases:
+            holes.append(run_hole_case(case, name))
+            progress.step(f"holes {case.name}")
     summary = SuiteSummary(results)
     print(summary.format())
     if len(seeds) > 1:
@@ -148,4 +162,7 @@ def run_eval_perception(args: argparse.Namespace) -> int:
     if edges:
         print()
         print(format_edges(edges))
+    if holes:
+        print()
+        print(format_holes(holes))
     return EXIT_OK

@@ -94,6 +94,7 @@ def _narrow_cells(
     min_size_m: float,
     visible_columns: npt.NDArray[np.integer],
     workspace: Workspace | None = None,
+    min_pixels: int = 20,
 ) -> npt.NDArray[np.bool_]:
     """Bins whose nearest cluster is narrower, across the line of sight, than the smallest obstacle.
 
@@ -146,6 +147,20 @@ def _narrow_cells(
         low, high = _percentile_cells(per_fine)
         span_m = (high - low) / FINE_PER_BIN / 0.9 * metres_per_turn
         narrow[undecided] = span_m[undecided] < needed_m[undecided]
+    if narrow.any():
+        # A face seen at a grazing angle recedes through many disparities: its slab holds a
+        # strip of it only. Followed back while its points run on without a gap (a strip of
+        # background beside a silhouette has none behind it), such a face is as wide as it is.
+        receding = _receding_bottom_px(cells, degree_bin, narrow, bottom, window_px, min_pixels)
+        grows = narrow & (receding < bottom_by_bin(bottom, degree_bin))
+        if grows.any():
+            deeper = receding[degree_bin]
+            member_deeper = (high_px[None, :] > deeper[:, None]) & (low_px[None, :] <= top[:, None])
+            member_deeper &= grows[degree_bin][:, None]
+            per_fine = _fine_counts(cells, member_deeper, ws)
+            low, high = _percentile_cells(per_fine)
+            span_m = (high - low) / FINE_PER_BIN / 0.9 * metres_per_turn
+            narrow[grows] = span_m[grows] < needed_m[grows]
     # An object just wider than the smallest one, split by a bin boundary, leaves a narrow
     # cluster on each side: together they are the object, and both bins hold part of it. A
     # narrow cluster beside a wide one stays narrow (a strip of background beside a
@@ -169,6 +184,51 @@ def _narrow_cells(
     narrow[whole] = False
     narrow[after[whole]] = False
     return narrow
+
+
+def bottom_by_bin(bottom: npt.NDArray[np.float64], degree_bin: IntArray) -> npt.NDArray[np.float64]:
+    """(72,) the lower disparity edge of each bin's cluster slab, from its degree rows' edges."""
+    out = np.full(SECTOR_COUNT, np.inf)
+    np.minimum.at(out, degree_bin, bottom)
+    return out
+
+
+def _receding_bottom_px(
+    cells: PointCells,
+    degree_bin: IntArray,
+    narrow: npt.NDArray[np.bool_],
+    bottom: npt.NDArray[np.float64],
+    window_px: float,
+    min_pixels: int,
+) -> npt.NDArray[np.float64]:
+    """(72,) how far down in disparity the points below each narrow cluster run on unbroken.
+
+    Going down (farther) from the cluster's slab, every window of ``window_px`` must hold at
+    least ``min_pixels`` of the bin's points; the first window that does not ends the run.
+    Bins that are not narrow keep their slab's edge.
+    """
+    slab_bottom = bottom_by_bin(bottom, degree_bin)
+    result = slab_bottom.copy()
+    per_bin = np.zeros((SECTOR_COUNT, cells.counts.shape[1]), dtype=np.int64)
+    rows = np.flatnonzero(narrow[degree_bin])
+    np.add.at(per_bin, degree_bin[rows], cells.counts[rows])
+    k = max(1, round(window_px / cells.cell_px))
+    if per_bin.shape[1] < k:
+        return result
+    running = np.concatenate(
+        (np.zeros((SECTOR_COUNT, 1), np.int64), np.cumsum(per_bin, axis=1)), axis=1
+    )
+    windows = running[:, k:] - running[:, :-k]  # window starting at each cell, upward
+    sparse = windows < min_pixels
+    for index in np.flatnonzero(narrow):
+        start = math.floor(slab_bottom[index] / cells.cell_px) - cells.first_cell
+        start = min(start, sparse.shape[1])
+        if start <= 0:
+            continue
+        gaps = np.flatnonzero(sparse[index, :start])
+        first_kept = int(gaps[-1]) + 1 if gaps.size else 0
+        result[index] = min(slab_bottom[index], (first_kept + cells.first_cell) * cells.cell_px)
+    return result
 
 
 def _fine_counts(
@@ -366,7 +426,7 @@ def sector_scan(
     :func:`avoidd.perception.ground.free_space_evidence`), and at most
     ``max_unresolved_fraction`` are textured but unmeasured (where an occluded, too near or
     too oblique surface may stand); otherwise it is unknown. Bins outside the field of view
-    are unknown.
+    are unknown; a bin at its edge (its middle outside) keeps a reading but is never clear.
 
     Args:
         candidates: The obstacle points (already limited to the sensor's maximum range).
@@ -446,15 +506,29 @@ def sector_scan(
         params.min_size_m,
         np.bincount(columns.bins, minlength=SECTOR_COUNT),
         workspace,
+        params.min_pixels,
     )
     nearest[narrow] = np.nan
     picked[narrow] = -1
-    has_obstacle = np.isfinite(nearest) & (picked >= 0)
+    # Obstacle points nearer than the reading that made no cluster (a surface too near, too
+    # oblique or too sparsely matched: a pole a few tenths of a metre away) stand between the
+    # vehicle and it: the reading would show a farther surface through them. The bin reads
+    # where they are instead (without a body point: no one point stands for them).
+    nearer_px = _nearer_points_px(merged, bins, cells, np.where(narrow, np.nan, near_px), params)
+    behind = np.isfinite(nearer_px)
+    nearest[behind] = (np.float32(focal_baseline) / nearer_px[behind]).astype(np.float32)
+    picked[behind] = -1
+    has_reading = np.isfinite(nearest)
     distance = nearest.astype(np.float32)
     points = np.full((SECTOR_COUNT, 3), np.nan, dtype=np.float32)
     level = _reported_points(candidates, picked, nearest)
+    # A reading of nearer points has no point of its own: the bin's middle at level.
+    middle = np.radians(np.arange(SECTOR_COUNT) * SECTOR_WIDTH_DEG)
+    level[behind, 0] = nearest[behind] * np.cos(middle[behind])
+    level[behind, 1] = nearest[behind] * np.sin(middle[behind])
+    level[behind, 2] = 0.0
     # Body = transpose(level_from_body) @ level; with row vectors that is level @ R.
-    points[has_obstacle] = (level[has_obstacle] @ candidates.level_from_body).astype(np.float32)
+    points[has_reading] = (level[has_reading] @ candidates.level_from_body).astype(np.float32)
 
     valid_fraction = valid_count / np.maximum(total, 1)
     free_fraction = free_count / np.maximum(total, 1)
@@ -463,15 +537,59 @@ def sector_scan(
     # distance the bin can vouch for. Unknown, never clear.
     points_per_bin = np.zeros(SECTOR_COUNT, dtype=np.int64)
     points_per_bin[bins] = merged.sum(axis=1)
-    clear = ~has_obstacle & ~narrow & (total > 0) & (points_per_bin < params.min_pixels)
+    clear = ~has_reading & ~narrow & (total > 0) & (points_per_bin < params.min_pixels)
     clear &= valid_fraction >= params.min_valid_fraction
     clear &= free_fraction >= params.min_free_fraction
     clear &= unresolved_count / np.maximum(total, 1) <= params.max_unresolved_fraction
     distance[clear] = np.inf
-    outside = ~columns.covered
+    # A bin whose middle lies outside the view but whose edge is in it keeps a reading (its
+    # nearest surface is there or nearer), never clear (the rest of the bin was not seen).
+    outside = ~columns.covered & ~has_reading
     distance[outside] = np.nan
     points[outside] = np.nan
     return SectorScan(t_capture_ns, distance, points)
+
+
+def _nearer_points_px(
+    merged: IntArray,
+    bins: IntArray,
+    cells: PointCells,
+    near_px: npt.NDArray[np.float64],
+    params: SectorsConfig,
+) -> npt.NDArray[np.float64]:
+    """Where a bin's reading lies behind at least ``min_pixels`` points, the disparity of those.
+
+    A point counts as nearer when its disparity cell lies wholly above the reading's cluster
+    window (more than ``cluster_window_px`` above the reported disparity), so the reading's
+    own cluster and its noise never count. Counted from the nearest down, the cell where the
+    count reaches ``min_pixels`` is read at its upper edge: that many points stand at least
+    that near.
+
+    Args:
+        merged: (rows, cells) points per disparity cell of the bins that hold points.
+        bins: (rows,) the bin of each row.
+        cells: The binned points (for the cells' disparity edges).
+        near_px: (72,) the disparity each bin reads (NaN where none).
+        params: ``min_pixels`` and ``cluster_window_px``.
+
+    Returns:
+        (72,) that disparity in pixels where a reading cannot be vouched for, NaN elsewhere.
+    """
+    result = np.full(SECTOR_COUNT, np.nan)
+    reading = near_px[bins]
+    with_reading = np.isfinite(reading)
+    if not with_reading.any():
+        return result
+    low_px, high_px = cells.edges_px()
+    limit = np.where(with_reading, reading, np.inf) + params.cluster_window_px
+    nearer = np.where(low_px[None, :] > limit[:, None], merged, 0)
+    from_near = np.cumsum(nearer[:, ::-1], axis=1)  # from the nearest cell down
+    enough = from_near[:, -1] >= params.min_pixels
+    rows = np.flatnonzero(with_reading & enough)
+    if rows.size:
+        reached = np.argmax(from_near[rows] >= params.min_pixels, axis=1)
+        result[bins[rows]] = high_px[::-1][reached]
+    return result
 
 
 class _Columns(NamedTuple):
