@@ -171,6 +171,32 @@ def test_unmeasured_bins_are_unknown_not_clear() -> None:
     assert distance[69] == np.inf and distance[71] == np.inf
 
 
+def test_a_plain_surface_in_view_is_unknown_never_clear() -> None:
+    # A surface too plain to match leaves its pixels unmeasured while the rest of the bin
+    # shows free space: before, the free pixels around it made the bin clear. Here a plain
+    # box 10 columns wide at the edge of bin 0 spans the level, so rays that would meet
+    # anything standing in the band are unmeasured: unknown, never clear.
+    depth = far_scene()
+    left = column_at(-2.5) + 1  # the first column of bin 0
+    bearings = column_bearings_deg(RIG, Mount())[left - 1 : left + 1]
+    assert bin_of_bearing(bearings).tolist() == [71, 0]
+    depth[RIG.height // 2 - 40 : RIG.height // 2 + 60, left : left + 10] = np.nan
+    distance = scan_of(depth)
+    assert np.isnan(distance[0])
+    assert distance[71] == np.inf and distance[1] == np.inf
+    # Holes below the level only (ground the matcher missed) and holes smaller than the
+    # patch (matcher noise) leave the bin clear.
+    depth = far_scene()
+    depth[RIG.height // 2 + 20 :, left : left + 10] = np.nan
+    rng = np.random.default_rng(5)
+    rows = rng.integers(0, RIG.height - 2, 200)
+    columns = rng.integers(0, RIG.width - 2, 200)
+    for row, column in zip(rows, columns, strict=True):
+        depth[row : row + 2, column : column + 2] = np.nan
+    distance = scan_of(depth)
+    assert distance[0] == np.inf
+
+
 def test_a_few_speckles_cannot_make_an_obstacle() -> None:
     depth = far_scene()
     rng = np.random.default_rng(1)

@@ -196,6 +196,11 @@ class SectorsConfig(Strict):
         min_size_m: A cluster must also cover a square of this side at its own distance (so
             near clusters need many pixels, and pixels smeared off an edge cannot pass for an
             object). The default is the smallest obstacle avoidd must see: a 5 cm pole.
+        unseen_patch_m: A bin without an obstacle is never clear while its view holds an
+            unmeasured patch at least this wide and tall at the maximum range (and at least
+            3 x 3 pixels), among the pixels that would see a surface standing in the height
+            band: rays at or below the level, and rays still inside the band at the maximum
+            range. Such a patch may be a surface too plain to match; smaller ones are noise.
     """
 
     min_pixels: int = Field(20, ge=1)
@@ -204,6 +209,7 @@ class SectorsConfig(Strict):
     min_free_fraction: float = Field(0.05, ge=0.0, le=1.0)
     max_unresolved_fraction: float = Field(0.1, ge=0.0, le=1.0)
     min_size_m: float = Field(0.05, ge=0.0, le=1.0)
+    unseen_patch_m: float = Field(0.3, gt=0.0, le=10.0)
 
     @model_validator(mode="before")
     @classmethod

@@ -5,6 +5,7 @@ from __future__ import annotations
 import math
 from typing import NamedTuple
 
+import cv2
 import numpy as np
 import numpy.typing as npt
 
@@ -24,6 +25,8 @@ class ObstaclePoints(NamedTuple):
         level: Their level-frame coordinates, (N,) each, in row-major pixel order.
         free_per_column: (W,) pixels per column that show free space (see
             :func:`free_space_evidence`).
+        unseen_per_column: (W,) pixels per column in unmeasured patches where a surface may
+            stand (see :func:`unseen_surfaces`).
         horizontal2_m2: With ``whole_image``: (H * W,) squared horizontal range of every
             pixel's point (None otherwise).
     """
@@ -31,6 +34,7 @@ class ObstaclePoints(NamedTuple):
     mask: BoolArray
     level: Components
     free_per_column: npt.NDArray[np.int64]
+    unseen_per_column: npt.NDArray[np.int64]
     horizontal2_m2: FloatArray | None = None
 
 
@@ -44,6 +48,7 @@ def obstacle_points(
     max_range_m: float,
     workspace: Workspace | None = None,
     whole_image: bool = False,
+    unseen_patch_px: tuple[int, int] = (3, 3),
 ) -> ObstaclePoints:
     """Pixels whose point may belong to an obstacle, with their level-frame points.
 
@@ -77,6 +82,8 @@ def obstacle_points(
             (H * W,), the mask says which are kept) instead of gathering the kept ones: the
             sector scan and the obstacle list then cost the same whatever share of the image
             is obstacle, and no gather is paid when most of it is.
+        unseen_patch_px: The smallest unmeasured patch that keeps a bin from reading clear,
+            rows by columns (see :func:`unseen_surfaces`).
 
     Returns:
         The kept pixels and their points.
@@ -124,13 +131,15 @@ def obstacle_points(
             out=test,
         )
     rise += f32(camera_down)  # now the down coordinate
-    free = _free_space(
+    free, watched = _free_space(
         depth_m, forward_map, right_map, down_map, camera_down, band, max_range_m, ws
     )
     free_per_column = np.count_nonzero(free, axis=0).astype(np.int64)
+    unseen = _unseen_patches(depth_m, watched, unseen_patch_px, ws)
+    unseen_per_column = np.count_nonzero(unseen, axis=0).astype(np.int64)
     if whole_image:
         level = Components(forward.ravel(), right.ravel(), rise.ravel())
-        return ObstaclePoints(keep, level, free_per_column, scratch.ravel())
+        return ObstaclePoints(keep, level, free_per_column, unseen_per_column, scratch.ravel())
     # Gathering by index is several times faster than a boolean mask on a scattered one.
     kept = np.flatnonzero(keep)
     count = kept.size
@@ -142,6 +151,7 @@ def obstacle_points(
             np.take(rise.ravel(), kept, out=ws.array("kept_down", count, f32)),
         ),
         free_per_column,
+        unseen_per_column,
     )
 
 
@@ -175,7 +185,76 @@ def free_space_evidence(
         float(to_level.translation[2]),
         band,
         max_range_m,
-    ).copy()
+    ).free.copy()
+
+
+def unseen_surfaces(
+    depth_m: FloatArray,
+    rig: RectifiedRig,
+    to_level: Pose,
+    band: BandConfig,
+    max_range_m: float,
+    patch_px: tuple[int, int],
+) -> BoolArray:
+    """Unmeasured patches where a surface standing in the height band may be.
+
+    A ray *watches* the band when it points at or below the level (it meets whatever stands
+    on the ground or in the band before it leaves) or when it is still inside the band at
+    ``max_range_m`` (the band is a slab the camera sits in, so it is inside all the way
+    there). A patch of unmeasured watching rays at least ``patch_px`` (rows, columns) in size
+    may be a surface too plain to match, or one the matcher gave up on, at any range up to
+    the maximum: a bin that holds one is never clear. Sky above the far band watches nothing
+    (a surface there would also stand in rays below it); smaller holes are matcher noise.
+
+    Args:
+        depth_m: Optical depth of every pixel (NaN unmeasured).
+        rig: The rig of the depth map.
+        to_level: Camera-to-level pose of the frame.
+        band: Height band parameters.
+        max_range_m: The range a clear bin vouches for.
+        patch_px: The smallest patch that counts, rows by columns.
+
+    Returns:
+        (H, W) boolean mask of the pixels in such patches.
+    """
+    watched = _free_space(
+        depth_m,
+        axis_per_depth(rig, depth_m.shape, to_level, 0),
+        axis_per_depth(rig, depth_m.shape, to_level, 1),
+        axis_per_depth(rig, depth_m.shape, to_level, 2),
+        float(to_level.translation[2]),
+        band,
+        max_range_m,
+    ).watched
+    return _unseen_patches(depth_m, watched, patch_px, Workspace()).astype(bool)
+
+
+def _unseen_patches(
+    depth_m: FloatArray, watched: BoolArray, patch_px: tuple[int, int], workspace: Workspace
+) -> npt.NDArray[np.uint8]:
+    """Unmeasured watching pixels that lie in a patch of at least ``patch_px`` (1 inside)."""
+    unseen = workspace.array("unseen", depth_m.shape, np.uint8)
+    np.logical_and(watched, np.isnan(depth_m), out=unseen.view(np.bool_))
+    # An opening keeps the pixels of every patch the kernel fits in; outside the image counts
+    # as measured, so a strip along the border is no larger than it looks.
+    kernel = np.ones(patch_px, dtype=np.uint8)
+    opened = cv2.morphologyEx(
+        unseen, cv2.MORPH_OPEN, kernel, borderType=cv2.BORDER_CONSTANT, borderValue=0
+    )
+    return np.asarray(opened, dtype=np.uint8)
+
+
+class FreeSpace(NamedTuple):
+    """Per pixel: free-space evidence, and whether the ray watches the band.
+
+    Attributes:
+        free: Measured at or beyond the range with the ray still inside the band there.
+        watched: The ray points at or below the level, or is inside the band at the range
+            (measured or not): see :func:`unseen_surfaces`.
+    """
+
+    free: BoolArray
+    watched: BoolArray
 
 
 def _free_space(
@@ -187,10 +266,10 @@ def _free_space(
     band: BandConfig,
     max_range_m: float,
     workspace: Workspace | None = None,
-) -> BoolArray:
-    """:func:`free_space_evidence` from the pixel maps of :func:`axis_per_depth`.
+) -> FreeSpace:
+    """:func:`free_space_evidence` and the far band from the maps of :func:`axis_per_depth`.
 
-    The result is an array of ``workspace`` (overwritten by its next frame).
+    The results are arrays of ``workspace`` (overwritten by its next frame).
     """
     ws = workspace or Workspace()
     shape = depth_m.shape
@@ -211,9 +290,13 @@ def _free_space(
         down_there = np.divide(down_map, horizontal, out=scratch)
         down_there *= f32(max_range_m)
         down_there += f32(camera_down_m)
-        beyond &= np.greater_equal(down_there, f32(-band.above_m), out=test)
-        beyond &= np.less_equal(down_there, f32(band.below_m), out=test)
-    return beyond
+        watched = np.greater_equal(
+            down_there, f32(-band.above_m), out=ws.array("watched", shape, np.bool_)
+        )
+        watched &= np.less_equal(down_there, f32(band.below_m), out=test)
+        beyond &= watched
+        watched &= np.less_equal(down_map, f32(0.0), out=test)
+    return FreeSpace(beyond, watched)
 
 
 def height_from_rangefinder(distance_m: float, roll_deg: float, pitch_deg: float) -> float:

@@ -41,6 +41,28 @@ class Perception(NamedTuple):
     candidate_mask: BoolArray | None = None
 
 
+def unseen_patch_px(
+    rig: RectifiedRig, sectors: SectorsConfig, max_range_m: float
+) -> tuple[int, int]:
+    """The smallest unmeasured patch that keeps a bin from clear, rows by columns.
+
+    ``sectors.unseen_patch_m`` seen at the maximum range, and never under 3 x 3 pixels (single
+    holes and two-pixel seams are the matcher's noise, not surfaces). Each side is odd: an
+    opening with an even kernel moves what it keeps by a pixel.
+
+    Args:
+        rig: The rig of the depth map.
+        sectors: Sector parameters.
+        max_range_m: The range a clear bin vouches for.
+    """
+
+    def side(focal_px: float, limit_px: int) -> int:
+        wanted = sectors.unseen_patch_m * focal_px / max(max_range_m, 1e-3)
+        return max(3, min(limit_px, math.ceil(wanted))) | 1
+
+    return side(rig.fy, rig.height), side(rig.fx, rig.width)
+
+
 def perceive(
     depth_m: FloatArray,
     rig: RectifiedRig,
@@ -112,6 +134,7 @@ def perceive(
         max_range_m,
         workspace,
         whole_image=True,
+        unseen_patch_px=unseen_patch_px(rig, sectors, max_range_m),
     )
     if views is not None and config.ground.match_band_px > 0:
         _drop_what_the_ground_explains(
@@ -146,6 +169,7 @@ def perceive(
         Candidates(forward, right, down, level_from_body),
         valid_per_column,
         points.free_per_column,
+        points.unseen_per_column,
         unresolved_per_column
         if unresolved_per_column is not None
         else np.zeros(depth_m.shape[1], dtype=np.int64),

@@ -402,6 +402,7 @@ def sector_scan(
     candidates: Candidates,
     valid_per_column: npt.NDArray[np.integer],
     free_per_column: npt.NDArray[np.integer],
+    unseen_per_column: npt.NDArray[np.integer],
     unresolved_per_column: npt.NDArray[np.integer],
     rows: int,
     rig: RectifiedRig,
@@ -423,15 +424,18 @@ def sector_scan(
     clear only on positive evidence: at least ``min_valid_fraction``
     of the pixels of its image columns were measured, at least ``min_free_fraction`` of them
     show free space out to the maximum range (see
-    :func:`avoidd.perception.ground.free_space_evidence`), and at most
+    :func:`avoidd.perception.ground.free_space_evidence`), at most
     ``max_unresolved_fraction`` are textured but unmeasured (where an occluded, too near or
-    too oblique surface may stand); otherwise it is unknown. Bins outside the field of view
+    too oblique surface may stand), and none lies in an unmeasured patch where a surface too
+    plain to match may stand (:func:`avoidd.perception.ground.unseen_surfaces`); otherwise it
+    is unknown. Bins outside the field of view
     are unknown; a bin at its edge (its middle outside) keeps a reading but is never clear.
 
     Args:
         candidates: The obstacle points (already limited to the sensor's maximum range).
         valid_per_column: (W,) measured pixels per image column (any surface, ground too).
         free_per_column: (W,) pixels per column that show free space to the maximum range.
+        unseen_per_column: (W,) pixels per column in unmeasured patches that may be a surface.
         unresolved_per_column: (W,) textured pixels per column without a measurement.
         rows: Pixels per column.
         rig: The rectified rig of the depth map.
@@ -452,6 +456,7 @@ def sector_scan(
     unresolved_count = np.bincount(
         columns.bins, weights=unresolved_per_column, minlength=SECTOR_COUNT
     )
+    unseen_count = np.bincount(columns.bins, weights=unseen_per_column, minlength=SECTOR_COUNT)
 
     focal_baseline = float(rig.fx * rig.baseline_m)
     if cells is None:
@@ -541,6 +546,9 @@ def sector_scan(
     clear &= valid_fraction >= params.min_valid_fraction
     clear &= free_fraction >= params.min_free_fraction
     clear &= unresolved_count / np.maximum(total, 1) <= params.max_unresolved_fraction
+    # A plain surface (a painted box, a wall in shade) leaves a patch no matcher can measure:
+    # the free space around it is no evidence for the bin's whole view.
+    clear &= unseen_count == 0
     distance[clear] = np.inf
     # A bin whose middle lies outside the view but whose edge is in it keeps a reading (its
     # nearest surface is there or nearer), never clear (the rest of the bin was not seen).
