@@ -9,6 +9,8 @@ from hypothesis import strategies as st
 
 from avoidd.config import HistogramConfig, PerceptionConfig, SectorsConfig
 from avoidd.mavlink.messages import UNKNOWN_CM, sectors_to_cm
+from avoidd.perception.frames import camera_to_level
+from avoidd.perception.ground import unseen_surfaces
 from avoidd.perception.perceive import perceive
 from avoidd.perception.sectors import (
     _beyond_reach,
@@ -184,6 +186,15 @@ def test_a_plain_surface_in_view_is_unknown_never_clear() -> None:
     distance = scan_of(depth)
     assert np.isnan(distance[0])
     assert distance[71] == np.inf and distance[1] == np.inf
+    # The patch is where the rays at or above the level meet it (the sky above the band at
+    # the maximum range and the ground below the level are no part of it).
+    level = camera_to_level(Mount(), 0.0, 0.0)
+    band = PerceptionConfig().band
+    patch = unseen_surfaces(depth, RIG, level, band, MAX_RANGE_M, (7, 7))
+    rows, columns = np.nonzero(patch)
+    assert set(columns.tolist()) == set(range(left, left + 10))
+    horizon = RIG.cy
+    assert rows.max() <= horizon and rows.min() >= horizon - RIG.fy * band.above_m / MAX_RANGE_M
     # Holes below the level only (ground the matcher missed) and holes smaller than the
     # patch (matcher noise) leave the bin clear.
     depth = far_scene()

@@ -177,15 +177,7 @@ def free_space_evidence(
     Returns:
         (H, W) boolean mask.
     """
-    return _free_space(
-        depth_m,
-        axis_per_depth(rig, depth_m.shape, to_level, 0),
-        axis_per_depth(rig, depth_m.shape, to_level, 1),
-        axis_per_depth(rig, depth_m.shape, to_level, 2),
-        float(to_level.translation[2]),
-        band,
-        max_range_m,
-    ).free.copy()
+    return _free_space_of(depth_m, rig, to_level, band, max_range_m).free.copy()
 
 
 def unseen_surfaces(
@@ -217,16 +209,17 @@ def unseen_surfaces(
     Returns:
         (H, W) boolean mask of the pixels in such patches.
     """
-    watched = _free_space(
-        depth_m,
-        axis_per_depth(rig, depth_m.shape, to_level, 0),
-        axis_per_depth(rig, depth_m.shape, to_level, 1),
-        axis_per_depth(rig, depth_m.shape, to_level, 2),
-        float(to_level.translation[2]),
-        band,
-        max_range_m,
-    ).watched
+    watched = _free_space_of(depth_m, rig, to_level, band, max_range_m).watched
     return _unseen_patches(depth_m, watched, patch_px, Workspace()).astype(bool)
+
+
+def _free_space_of(
+    depth_m: FloatArray, rig: RectifiedRig, to_level: Pose, band: BandConfig, max_range_m: float
+) -> FreeSpace:
+    """:func:`_free_space` of a depth map, its pixel maps made here (in arrays of their own)."""
+    forward, right, down = (axis_per_depth(rig, depth_m.shape, to_level, i) for i in range(3))
+    camera_down_m = float(to_level.translation[2])
+    return _free_space(depth_m, forward, right, down, camera_down_m, band, max_range_m, Workspace())
 
 
 def _unseen_patches(
