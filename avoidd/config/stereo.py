@@ -198,9 +198,10 @@ class SectorsConfig(Strict):
             object). The default is the smallest obstacle avoidd must see: a 5 cm pole.
         unseen_patch_m: A bin without an obstacle is never clear while its view holds an
             unmeasured patch at least this wide and tall at the maximum range (and at least
-            3 x 3 pixels), among the pixels that would see a surface standing in the height
-            band: rays at or below the level, and rays still inside the band at the maximum
-            range. Such a patch may be a surface too plain to match; smaller ones are noise.
+            3 x 3 pixels), among the rays at or above the level that are still inside the
+            height band at the maximum range (any surface in the band that reaches the
+            camera's height meets them). Such a patch may be a surface too plain to match;
+            smaller ones are noise.
     """
 
     min_pixels: int = Field(20, ge=1)

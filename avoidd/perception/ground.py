@@ -190,13 +190,15 @@ def unseen_surfaces(
 ) -> BoolArray:
     """Unmeasured patches where a surface standing in the height band may be.
 
-    A ray *watches* the band when it points at or below the level (it meets whatever stands
-    on the ground or in the band before it leaves) or when it is still inside the band at
-    ``max_range_m`` (the band is a slab the camera sits in, so it is inside all the way
-    there). A patch of unmeasured watching rays at least ``patch_px`` (rows, columns) in size
-    may be a surface too plain to match, or one the matcher gave up on, at any range up to
-    the maximum: a bin that holds one is never clear. Sky above the far band watches nothing
-    (a surface there would also stand in rays below it); smaller holes are matcher noise.
+    A ray *watches* the band when it points at or above the level and is still inside the
+    band at ``max_range_m`` (the band is a slab the camera sits in, so it is inside all the
+    way there): whatever stands in the band within that range and reaches the camera's height
+    meets such rays. A patch of unmeasured watching rays at least ``patch_px`` (rows, columns)
+    in size may be a surface too plain to match, or one the matcher gave up on, at any range
+    up to the maximum: a bin that holds one is never clear. Sky above the band at the maximum
+    range watches nothing, and neither do rays below the level: far ground at a grazing angle
+    and dark noisy ground leave holes there that are no surface (so a plain obstacle lower
+    than the camera escapes this test). Smaller holes are matcher noise.
 
     Args:
         depth_m: Optical depth of every pixel (NaN unmeasured).
@@ -242,7 +244,7 @@ class FreeSpace(NamedTuple):
 
     Attributes:
         free: Measured at or beyond the range with the ray still inside the band there.
-        watched: The ray points at or below the level, or is inside the band at the range
+        watched: The ray points at or above the level and is inside the band at the range
             (measured or not): see :func:`unseen_surfaces`.
     """
 
