@@ -227,6 +227,9 @@ async def test_50_viewers_for_10_s_leave_no_gap_in_obstacle_distance(tmp_path: P
         )
         assert len(codes) == 50 and codes.count(200) == 8 and codes.count(503) == 42, codes
         assert during.kept_up_with(control), (during, control)
+        # The figure: no gap over 0.3 s. On a machine whose own control window already
+        # has a long gap (load far past its cores), the viewers may add at most 0.1 s to it.
+        assert during.longest_gap_s <= max(0.3, control.longest_gap_s + 0.1), (during, control)
     finally:
         code = daemon.end()
         await autopilot.stop()
