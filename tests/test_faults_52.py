@@ -9,7 +9,8 @@ item                                   test
 =====================================  =========================================================
 1 who may command avoidd               test_trust_link.py, test_trust.py
 2 signing across restarts              test_trust_link.py (``test_a_signed_daemon_restarted...``,
-                                       ``test_a_signed_command_captured...``)
+                                       ``test_a_signed_command_captured...``);
+                                       test_sitl_signing.py (a real signed ArduPilot)
 3, 5 clear no farther than the rig     test_geometry_checks.py
 resolves
 4 ``udpin`` hijack                     test_hostile_link.py: pinned address through a reboot,
