@@ -9,6 +9,7 @@ import time
 from pathlib import Path
 from typing import Any
 
+import numpy as np
 import pytest
 
 from avoidd.daemon import Daemon
@@ -20,6 +21,7 @@ from avoidd.mavlink.layout import ARDUPILOT_LAYOUT
 from avoidd.mavlink.mission import MissionItem
 from avoidd.sim.ardupilot import ArduPilotSitl
 from avoidd.sources import open_source
+from avoidd.types import SectorScan
 from tests.helpers import free_udp_port, great_circle_ne, synthetic_config, wait_for
 from tests.test_wire_layout import ardupilot_sectors
 
@@ -47,6 +49,7 @@ async def _sitl_and_daemon(
     sitl_dir: Path,
     tmp_path: Path,
     sections: dict[str, Any] | None = None,
+    mavlink: dict[str, Any] | None = None,
     **daemon_args: Any,
 ) -> tuple[ArduPilotSitl, Daemon, asyncio.Task[int]]:
     port = free_udp_port()
@@ -56,7 +59,7 @@ async def _sitl_and_daemon(
         tmp_path,
         f"udpin:127.0.0.1:{port}",
         source=SCENE,
-        mavlink={"system_id": "auto"},
+        mavlink={"system_id": "auto", **(mavlink or {})},
         pipeline={"max_age_ms": 300, "log_interval_s": 5.0},
         sections=sections,
     )
@@ -340,3 +343,53 @@ async def test_mission_and_reposition_from_a_real_ardupilot(sitl_dir: Path, tmp_
         )
     finally:
         await _stop(sitl, daemon, task)
+
+
+def _sector_reports(gcs: Any, sector_id: int, since_ns: int) -> list[int]:
+    return [
+        h.message.current_distance
+        for h in gcs.heard
+        if h.received_ns >= since_ns
+        and h.message.get_type() == "DISTANCE_SENSOR"
+        and h.message.id == sector_id
+    ]
+
+
+@pytest.mark.parametrize("fill", [False, True])
+async def test_ardupilot_reads_an_unknown_bin_beside_a_reading_as_that_reading(
+    sitl_dir: Path, tmp_path: Path, monkeypatch: pytest.MonkeyPatch, fill: bool
+) -> None:
+    # What perception handed on: a surface at 3 m at +20 deg (the front sector's last bin),
+    # the rest of the front sector clear, and the three bins of the front-right sector the
+    # camera sees (+25 to +35 deg) unknown: the surface there could not be vouched for.
+    distance = np.full(72, np.nan, dtype=np.float32)
+    distance[[68, 69, 70, 71, 0, 1, 2, 3]] = np.inf
+    distance[4] = 3.0
+
+    def scan(self: Outputs, now_ns: int) -> SectorScan:
+        return SectorScan(now_ns, distance.copy())
+
+    monkeypatch.setattr(Outputs, "current_scan", scan)
+    sitl, daemon, task = await _sitl_and_daemon(
+        sitl_dir, tmp_path, mavlink={"obstacle_distance": {"fill_from_neighbours": fill}}
+    )
+    try:
+        gcs = sitl.gcs
+        assert gcs is not None
+        assert await gcs.request_message_interval("DISTANCE_SENSOR", 10) == 0
+        assert await wait_for(lambda: daemon.vehicle.link_up, 20.0)
+        assert await wait_for(lambda: len(_sector_reports(gcs, FRONT, 0)) > 5, 20.0)
+        since_ns = time.monotonic_ns()
+        await asyncio.sleep(3.0)
+        front = _sector_reports(gcs, FRONT, since_ns)
+        front_right = _sector_reports(gcs, FRONT_RIGHT, since_ns)
+    finally:
+        await _stop(sitl, daemon, task)
+    print(f"fill {fill}: front {sorted(set(front))}, front-right {sorted(set(front_right))} cm")
+    assert front and all(295 <= d <= 305 for d in front), front
+    if fill:
+        # The unknown bin at +25 deg went out as 3 m: ArduPilot's front-right sector holds it.
+        assert len(front_right) >= 10 and all(295 <= d <= 305 for d in front_right), front_right
+    else:
+        # 65535 there: ArduPilot holds nothing in that sector, as if it were empty.
+        assert all(d > 2000 for d in front_right), front_right

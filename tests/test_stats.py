@@ -89,7 +89,8 @@ def test_log_line_reads_as_before() -> None:
     assert log_line(_stats(down, False, None)) == (
         "front: 14.8 fps, skipped 3, dropped 1, latency 61 ms; "
         "front: 14.8 fps, skipped 3, dropped 1, latency 61 ms; "
-        "no fresh data; sent 75; link down; rx 0, dropped 3, parse errors 0, unsigned rejected 0"
+        "no fresh data; sent 75; no autopilot heard; "
+        "rx 0, dropped 3, parse errors 0, unsigned rejected 0"
     )
     mode = FlightMode("ArduPilot", 2, "GUIDED", True, True)
     up = LinkSnapshot(True, 1, mode, {}, 1234, 0, 2, 7)

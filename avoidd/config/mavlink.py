@@ -23,11 +23,16 @@ class ObstacleDistanceConfig(Strict):
             ranges the rig cannot measure.
         max_distance_cm: Readings at or beyond this are sent as clear. A rig that resolves
             less far lowers it (see ``heads[].disparity_error_px``, ``avoidd check-config``).
+        fill_from_neighbours: For ArduPilot (and any autopilot but PX4), which reads an unknown
+            bin as nothing: an unknown bin inside a head's view beside a reading is sent with
+            the nearer neighbour's reading (``avoidd.mavlink.fill``). PX4 reads unknown as
+            "no data" and always gets the scan unchanged.
     """
 
     rate_hz: float = Field(15.0, ge=1.0, le=50.0)
     min_distance_cm: int | None = Field(None, ge=1, le=65533)
     max_distance_cm: int = Field(2000, ge=2, le=65533)
+    fill_from_neighbours: bool = True
 
     @model_validator(mode="after")
     def _range(self) -> ObstacleDistanceConfig:

@@ -424,5 +424,5 @@ class Daemon:
                     mav.MAV_SEVERITY_CRITICAL, f"avoidd: {name} stale, {why}", f"fresh {name}"
                 )
             else:
-                logger.warning("head '%s': data fresh again", name)
+                logger.info("head '%s': data fresh again", name)
                 self.announce(mav.MAV_SEVERITY_NOTICE, f"avoidd: {name} recovered", f"fresh {name}")

@@ -7,6 +7,7 @@ import logging
 import math
 import time
 from collections.abc import Callable, Coroutine, Sequence
+from dataclasses import replace
 from typing import Any
 
 import numpy as np
@@ -15,6 +16,7 @@ from avoidd.config import MavlinkConfig
 from avoidd.daemon.head import Head
 from avoidd.logrepeat import RepeatLimiter
 from avoidd.mavlink.codec import Message
+from avoidd.mavlink.fill import fill_from_neighbours
 from avoidd.mavlink.layout import layout_for
 from avoidd.mavlink.link import MavLink
 from avoidd.mavlink.messages import (
@@ -25,8 +27,8 @@ from avoidd.mavlink.messages import (
 )
 from avoidd.mavlink.modes import ARDUPILOT, PX4
 from avoidd.mavlink.vehicle import Vehicle
-from avoidd.perception.sectors import merge_scans
-from avoidd.types import SectorScan
+from avoidd.perception.sectors import covered_bins, merge_scans
+from avoidd.types import SECTOR_COUNT, SectorScan
 
 logger = logging.getLogger(__name__)
 
@@ -104,6 +106,10 @@ class Outputs:
         farthest_m = min((head.pipeline.resolved_range_m for head in heads), default=math.inf)
         self.min_cm, self.max_cm = config.obstacle_distance.range_cm(nearest_m, farthest_m)
         """The range the messages claim: what the least capable head measures and resolves."""
+        self.in_view = np.zeros(SECTOR_COUNT, dtype=np.bool_)
+        """The bins some head's field of view covers."""
+        for head in heads:
+            self.in_view |= covered_bins(head.pipeline.work_rig, head.pipeline.mount)
 
     def current_scan(self, now_ns: int) -> SectorScan | None:
         """The heads' fresh scans merged (see :func:`current_scan`)."""
@@ -132,7 +138,9 @@ class Outputs:
         65535 as "no data"; nothing for ArduPilot, which takes a message of unknown bins as a
         healthy sensor with a clear view (without messages it reports "PRX1: No Data" within
         0.5 s and fails pre-arm); nothing either for an autopilot not yet heard from. Fresh
-        data of which no bin is known is no data either.
+        data of which no bin is known is no data either. For any autopilot but PX4, an unknown
+        bin in view beside a reading is sent with the nearer neighbour's reading
+        (:mod:`avoidd.mavlink.fill`).
         ``time_usec`` is the capture time on avoidd's monotonic clock, never going back
         (ArduPilot and PX4 both time the data from its arrival and do not read it).
         """
@@ -162,6 +170,9 @@ class Outputs:
                 return None
             distances, t_ns = unknown_cm(), now_ns
         else:
+            if autopilot != PX4 and self.config.obstacle_distance.fill_from_neighbours:
+                # ArduPilot reads an unknown bin as nothing: the nearer neighbour's reading.
+                scan = replace(scan, distance_m=fill_from_neighbours(scan.distance_m, self.in_view))
             distances, t_ns = sectors_to_cm(scan, self.min_cm, self.max_cm), scan.t_capture_ns
         self._last_usec = max(self._last_usec, t_ns // 1000)
         return self.link.codec.obstacle_distance(

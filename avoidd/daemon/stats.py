@@ -187,7 +187,8 @@ def link_summary(link: LinkSnapshot) -> str:
     """One phrase on the link: vehicle state and error counters."""
     mode = link.mode
     if not link.link_up or mode is None:
-        state = "link down"
+        # Not "link down": the messages are sent all the same (udpout), nothing answers.
+        state = "no autopilot heard"
     else:
         state = (
             f"link up: {mode.autopilot} sys {link.system_id} {mode.name} "

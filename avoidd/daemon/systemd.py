@@ -277,7 +277,7 @@ class ServiceReporter:
                         why,
                     )
             for name in self._stuck.keys() - stuck.keys():
-                logger.warning("head '%s' makes progress again", name)
+                logger.info("head '%s' makes progress again", name)
         if self.ready_ns is not None and self._waiting and not waiting:
             logger.info("every head delivers now")
         self._stuck, self._waiting = stuck, waiting

@@ -42,7 +42,7 @@ async function refresh() {
       h.mean_latency_ms.toFixed(0) + " ms" + (h.stale ? ", STALE" : "")).join("; ");
     const l = s.link;
     const link = l.up ? ("link up: " + l.autopilot + " sys " + l.system_id + ", mode " +
-      l.mode + ", armed " + yn(l.armed)) : "link down";
+      l.mode + ", armed " + yn(l.armed)) : "no autopilot heard";
     const health = s.healthy ? "healthy" : (s.fresh_data ? "degraded" : "NO FRESH DATA");
     document.getElementById("status").textContent =
       heads + "\\n" + link + "; " + health + (s.planner ? "; " + s.planner : "");

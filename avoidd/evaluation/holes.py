@@ -16,6 +16,10 @@ promises to see (a ``sectors.min_size_m`` square at its distance, as in the near
 suites) is scored: *read* when its reading is within 10 % of the truth, *too near* when it
 reads nearer than that (safe, but a wrong figure), *unknown* when it reads unknown, *too far*
 when it reads farther than 1.1 x the truth or clear.
+
+Each unknown bin is also scored as ArduPilot receives it after the fill of
+:mod:`avoidd.mavlink.fill` (the nearer neighbour's reading, or still nothing): within 10 %,
+nearer, farther than 1.1 x the truth, or nothing.
 """
 
 from __future__ import annotations
@@ -35,6 +39,8 @@ from avoidd.evaluation.scenes import (
     suite_head,
     truth_bins,
 )
+from avoidd.mavlink.fill import fill_from_neighbours
+from avoidd.perception.sectors import covered_bins
 from avoidd.pipeline import HeadPipeline
 from avoidd.sources.scene import Box, Pole, Scene, render_pair
 from avoidd.vision.calibration import Calibration
@@ -57,6 +63,8 @@ class HoleResult:
         too_near: ``(bin, truth m, read m)`` of bins nearer than 0.9 x the truth.
         unknown: ``(bin, truth m)`` of bins that read unknown.
         too_far: ``(bin, truth m, read m)`` of bins farther than 1.1 x the truth or clear.
+        filled: ``(bin, truth m, sent m)`` of the unknown bins ArduPilot gets a reading for
+            (:func:`~avoidd.mavlink.fill.fill_from_neighbours`).
     """
 
     name: str
@@ -65,6 +73,7 @@ class HoleResult:
     too_near: list[tuple[int, float, float]] = field(default_factory=list)
     unknown: list[tuple[int, float]] = field(default_factory=list)
     too_far: list[tuple[int, float, float]] = field(default_factory=list)
+    filled: list[tuple[int, float, float]] = field(default_factory=list)
 
     @property
     def bins(self) -> int:
@@ -184,12 +193,17 @@ def run_hole_case(case: SceneCase, suite_name: str, noise_std: float = 1.5) -> H
     resolvable_px = case.rig.fx * pipeline.sectors.min_size_m
     occupied = truth_bins(rendered.truth, pipeline.mount, case.pose, perception, resolvable_px)
     verdict = HoleResult(case.name, suite_name)
+    sent_m = fill_from_neighbours(
+        result.scan.distance_m, covered_bins(pipeline.work_rig, pipeline.mount)
+    )
     for index, truth_m in sorted(occupied.items()):
         if truth_m > _MAX_RANGE_M:
             continue
         read_m = float(result.scan.distance_m[index])
         if math.isnan(read_m):
             verdict.unknown.append((index, truth_m))
+            if math.isfinite(sent_m[index]):
+                verdict.filled.append((index, truth_m, float(sent_m[index])))
         elif read_m > truth_m * (1.0 + _TOLERANCE):
             verdict.too_far.append((index, truth_m, read_m))
         elif read_m < truth_m * (1.0 - _TOLERANCE):
@@ -211,6 +225,9 @@ class HoleSummary:
         too_near: Bins nearer than 0.9 x the truth.
         unknown: Bins that read unknown.
         too_far: Bins farther than 1.1 x the truth, or clear.
+        filled: Unknown bins ArduPilot gets a reading for after the fill.
+        filled_read: Of those, readings within 10 % of the truth.
+        filled_far: Of those, readings farther than 1.1 x the truth.
     """
 
     suite: str
@@ -220,6 +237,9 @@ class HoleSummary:
     too_near: int
     unknown: int
     too_far: int
+    filled: int = 0
+    filled_read: int = 0
+    filled_far: int = 0
 
     def share_pct(self, count: int) -> float:
         """``count`` as a percentage of the bins scored."""
@@ -230,7 +250,10 @@ class HoleSummary:
         return (
             f"{self.suite}: {self.share_pct(self.read):.1f}% of {self.bins} bins read within "
             f"10%, {self.share_pct(self.unknown):.1f}% unknown ({self.unknown}), "
-            f"{self.too_near} too near, {self.too_far} too far, over {self.scenes} scenes"
+            f"{self.too_near} too near, {self.too_far} too far, over {self.scenes} scenes; "
+            f"ArduPilot after the fill: {self.filled} of the {self.unknown} unknown carry a "
+            f"reading ({self.filled_read} within 10%, {self.filled_far} farther), "
+            f"{self.unknown - self.filled} nothing"
         )
 
 
@@ -249,6 +272,9 @@ def summarize(results: list[HoleResult]) -> list[HoleSummary]:
                     sum(len(r.too_near) for r in mine),
                     sum(len(r.unknown) for r in mine),
                     sum(len(r.too_far) for r in mine),
+                    sum(len(r.filled) for r in mine),
+                    sum(abs(m - t) <= _TOLERANCE * t for r in mine for _, t, m in r.filled),
+                    sum(m > (1.0 + _TOLERANCE) * t for r in mine for _, t, m in r.filled),
                 )
             )
     return summaries

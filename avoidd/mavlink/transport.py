@@ -243,7 +243,7 @@ class _Serial:
                 backoff_s = min(backoff_s * 2, 0.5)
                 continue
             if failures or self.reconnects:
-                logger.warning("MAVLink %s: port open again", self._spec)
+                logger.info("MAVLink %s: port open again", self._spec)
             failures = 0
             backoff_s = 0.1
             self._fd = fd

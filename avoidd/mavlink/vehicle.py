@@ -334,7 +334,7 @@ class Vehicle:
                 request.acked = request.refused = False
                 request.attempts = 0
             self._pending = None
-            logger.warning(
+            logger.info(
                 "MAVLink link up: %s system %d, mode %s, %s",
                 mode.autopilot,
                 self.system_id,
