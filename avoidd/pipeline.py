@@ -11,9 +11,10 @@ import numpy.typing as npt
 
 from avoidd.config import HeadConfig, PerceptionConfig
 from avoidd.errors import BrokenFrame
+from avoidd.perception.blind_band import hidden_bins, without_band_columns
 from avoidd.perception.ground_match import Views
 from avoidd.perception.obstacles import Obstacle
-from avoidd.perception.perceive import perceive
+from avoidd.perception.perceive import Perception, perceive, rectified_to_level
 from avoidd.perception.pose import resolve_pose
 from avoidd.types import (
     BoolArray,
@@ -97,6 +98,8 @@ class Matched(NamedTuple):
         disparity: The main matcher's disparity (NaN unmeasured); the near-field pass is
             applied by :meth:`HeadPipeline.finish`.
         filled_by_matcher: Pixels the matcher filled rather than measured, when it says.
+        unchecked: In the left border band, readings dropped because the right view could
+            not check them (None: no band was checked).
         timing_ms: Milliseconds of the stages so far (rectify, preprocess, match).
         steps_ms: Milliseconds of each preprocessing step.
     """
@@ -107,6 +110,7 @@ class Matched(NamedTuple):
     texture: BoolArray | None
     disparity: FloatArray
     filled_by_matcher: BoolArray | None
+    unchecked: BoolArray | None
     timing_ms: dict[str, float]
     steps_ms: dict[str, float]
 
@@ -280,7 +284,15 @@ class HeadPipeline:
         disparity = self._matcher.compute(left, right)
         lap("match")
         return Matched(
-            frame, left, right, texture, disparity, self._matcher.last_filled, lap.ms, steps_ms
+            frame,
+            left,
+            right,
+            texture,
+            disparity,
+            self._matcher.last_filled,
+            self._matcher.last_unchecked,
+            lap.ms,
+            steps_ms,
         )
 
     def finish(
@@ -323,11 +335,6 @@ class HeadPipeline:
         )
         disparity, textured, filled_display, sigma = post
         lap("post")
-        band = self._matcher.num_disparities
-        if band:
-            # The left border band cannot show an object nearer than f*B/x at column x (its
-            # match would be outside the right image), so nothing there is vouched for.
-            disparity[:, :band] = np.nan
         # Textured pixels left without a measurement (occluded, too near, too oblique, in the
         # band): something may stand there that no bin can vouch for as clear.
         unmeasured = np.isnan(disparity)
@@ -337,21 +344,55 @@ class HeadPipeline:
         if filled_display is not None:
             filled_depth = depth_from_disparity(filled_display, self.work_rig)
         lap("depth")
-        seen = perceive(
-            depth,
+        unresolved_per_column = np.count_nonzero(unresolved, axis=0)
+        frame_pose = pose or self.default_pose(frame)
+
+        def see(depth_m: FloatArray, disparity_px: FloatArray) -> Perception:
+            return perceive(
+                depth_m,
+                self.work_rig,
+                self.mount,
+                frame_pose,
+                self.perception,
+                self.sectors,
+                self._histogram,
+                self._max_range_m,
+                frame.t_capture_ns,
+                with_obstacles,
+                self.rectified_from_raw,
+                unresolved_per_column,
+                Views(left, right, disparity_px, sigma),
+            )
+
+        seen = see(depth, disparity)
+        # The left border band cannot show a surface nearer than f*B/x at column x (its match
+        # would be outside the right image). Where a bin's band pixels show that something
+        # nearer than its reading stands unseen, the bin reads as if the band were not there:
+        # from its other columns, or unknown.
+        band_px = min(self._matcher.num_disparities, unresolved.shape[1])
+        evidence = unresolved[:, :band_px].copy()
+        if matched.unchecked is not None:
+            checked = min(band_px, matched.unchecked.shape[1])
+            evidence[:, :checked] &= ~matched.unchecked[:, :checked]
+        hidden = hidden_bins(
+            evidence,
             self.work_rig,
-            self.mount,
-            pose or self.default_pose(frame),
-            self.perception,
-            self.sectors,
-            self._histogram,
-            self._max_range_m,
-            frame.t_capture_ns,
-            with_obstacles,
-            self.rectified_from_raw,
-            np.count_nonzero(unresolved, axis=0),
-            Views(left, right, disparity, sigma),
+            rectified_to_level(self.mount, seen.pose, self.rectified_from_raw),
+            self.sectors.min_size_m,
+            self.sectors.min_pixels,
+            seen.scan.distance_m,
         )
+        if hidden.any():
+            without_band = (
+                without_band_columns(depth, band_px),
+                without_band_columns(disparity, band_px),
+            )
+            blind = see(*without_band).scan
+            seen.scan.distance_m[hidden] = blind.distance_m[hidden]
+            if seen.scan.points_frd_m is not None:
+                seen.scan.points_frd_m[hidden] = (
+                    blind.points_frd_m[hidden] if blind.points_frd_m is not None else np.nan
+                )
         lap("obstacles")
         valid = float(np.count_nonzero(~np.isnan(disparity))) / disparity.size
         return HeadResult(

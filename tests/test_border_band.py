@@ -86,8 +86,28 @@ def test_confirm_band_keeps_what_the_right_view_points_back_to() -> None:
     disparity = np.full(left.shape, np.float32(shift_px), dtype=np.float32)
     disparity[:, :shift_px] = np.nan  # their match is left of the right image
     disparity[20:30, 18:28] = 4.0  # a wrong, farther reading inside the band
-    confirm_band(left, right, disparity, 32)
+    unchecked = confirm_band(left, right, disparity, 32)
+    assert unchecked.shape == (60, 31)
+    assert not unchecked[20:30, 18:28].any()  # contradicted: evidence, not "unchecked"
     kept = np.isfinite(disparity[5:-5, shift_px:32])
     assert kept[:15].mean() > 0.95 and kept[25:].mean() > 0.95  # right ones stay
     assert np.isnan(disparity[20:30, 18:28]).all()  # the wrong one is dropped, not moved
     assert np.all(disparity[:, 32:] == shift_px)  # right of the band nothing changes
+
+
+def test_confirm_band_tells_an_unchecked_reading_from_a_contradicted_one() -> None:
+    # Where the right view has no texture its own match is invalid: a band reading there is
+    # dropped as unchecked (no evidence of a hidden surface), not as contradicted.
+    rng = np.random.default_rng(6)
+    shift_px = 10
+    scene_row = rng.integers(0, 256, (60, 200 + shift_px), dtype=np.uint8)
+    scene_row[:, :25] = 128  # flat: nothing for either view to match
+    left = np.ascontiguousarray(scene_row[:, :-shift_px])
+    right = np.ascontiguousarray(scene_row[:, shift_px:])
+    disparity = np.full(left.shape, np.float32(shift_px), dtype=np.float32)
+    unchecked = confirm_band(left, right, disparity, 48)
+    assert unchecked.shape == (60, 47)
+    assert unchecked[10:50, 12:19].mean() > 0.9  # they land on the flat right columns 2-8
+    assert np.isnan(disparity[10:50, 12:19]).all()
+    assert unchecked[10:50, 36:47].mean() < 0.1  # textured: checked, and kept
+    assert np.isfinite(disparity[10:50, 36:47]).mean() > 0.9

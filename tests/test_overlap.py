@@ -149,7 +149,7 @@ class _SlowPipeline:
         time.sleep(self.stage_s)
         self._leave("match", frame.seq, started)
         empty = np.zeros((2, 2), np.float32)
-        return Matched(frame, frame.left, frame.right, None, empty, None, {}, {})
+        return Matched(frame, frame.left, frame.right, None, empty, None, None, {}, {})
 
     def finish(self, matched: Matched, pose: FramePose | None = None) -> HeadResult:
         started = self._enter()

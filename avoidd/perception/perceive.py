@@ -63,6 +63,27 @@ def unseen_patch_px(
     return side(rig.fy, rig.height), side(rig.fx, rig.width)
 
 
+def rectified_to_level(
+    mount: Mount, pose: FramePose, rectified_from_raw: Matrix | None = None
+) -> Pose:
+    """Pose of the rectified left view in the level frame (mount, attitude, rectification).
+
+    Args:
+        mount: The head's mount (it describes the physical camera).
+        pose: Vehicle roll and pitch at capture.
+        rectified_from_raw: Rotation from the physical left camera to the rectified view;
+            identity when None.
+
+    Returns:
+        Rectified-camera-to-level pose.
+    """
+    to_level = camera_to_level(mount, pose.roll_deg, pose.pitch_deg)
+    if rectified_from_raw is not None:
+        # Rectified points turn back into the physical camera's frame first.
+        to_level = Pose(to_level.rotation @ rectified_from_raw.T, to_level.translation)
+    return to_level
+
+
 def perceive(
     depth_m: FloatArray,
     rig: RectifiedRig,
@@ -114,10 +135,7 @@ def perceive(
             f"height {pose.height_m} ({pose.source}/{pose.height_source}) or mount position "
             f"{mount.position_m} is not a finite number; dropped"
         )
-    to_level = camera_to_level(mount, pose.roll_deg, pose.pitch_deg)
-    if rectified_from_raw is not None:
-        # Rectified points turn back into the physical camera's frame first.
-        to_level = Pose(to_level.rotation @ rectified_from_raw.T, to_level.translation)
+    to_level = rectified_to_level(mount, pose, rectified_from_raw)
     # The thread's workspace keeps the temporaries (and the points) from frame to frame.
     workspace = Workspace.for_thread()
     # Every pixel comes back as a point (the mask says which are kept). When most are kept

@@ -12,9 +12,13 @@ class Matcher(Protocol):
 
     ``last_filled`` marks pixels of the last result that the matcher filled rather than
     measured (the segment matcher's region interiors); None when every value was measured.
+    ``last_unchecked`` marks, in the left border band (its first columns), readings dropped
+    because the right view could not check them (see
+    :func:`~avoidd.vision.matchers.border.confirm_band`); None when no band was checked.
     """
 
     last_filled: BoolArray | None
+    last_unchecked: BoolArray | None
 
     @property
     def num_disparities(self) -> int:

@@ -14,7 +14,7 @@ from __future__ import annotations
 import cv2
 import numpy as np
 
-from avoidd.types import FloatArray, Image
+from avoidd.types import BoolArray, FloatArray, Image
 
 CHECK_BLOCK_PX = 11
 """Window of the band's confirming match (the ``sad`` matcher's default block)."""
@@ -103,7 +103,7 @@ def confirm_band(
     disparity_px: FloatArray,
     num_disparities: int,
     min_disparity: int = 0,
-) -> None:
+) -> BoolArray:
     """Drop the left border band's readings that the right view does not point back to.
 
     A reading ``d`` at band column ``x`` stands only if the right view's own match of column
@@ -118,11 +118,17 @@ def confirm_band(
             (the first ``min_disparity + num_disparities - 1`` columns).
         num_disparities: Width of the search range.
         min_disparity: Smallest disparity searched.
+
+    Returns:
+        (H, band) the dropped readings that the right view could not check (no match of
+        its own there: too little texture, not unique), as against those it contradicts.
+        Only a contradiction or no match at all is evidence of a surface the band cannot
+        see (see :mod:`avoidd.perception.blind_band`).
     """
     # Column x can match outside the right image when x - d < 0 for a searched d.
     band_px = min(min_disparity + num_disparities - 1, disparity_px.shape[1])
     if band_px <= 0:
-        return
+        return np.zeros((disparity_px.shape[0], 0), dtype=np.bool_)
     band = disparity_px[:, :band_px]  # a view
     # Right columns the band's readings land on: x - d, d from min_disparity up.
     needed = band_px + max(0, -min_disparity)
@@ -133,7 +139,9 @@ def confirm_band(
     pointed = np.take_along_axis(back, landing, axis=1)
     with np.errstate(invalid="ignore"):
         confirmed = np.abs(pointed - band) <= CHECK_TOLERANCE_PX
+    unchecked = np.isnan(pointed) & ~np.isnan(band)
     np.copyto(band, np.float32(np.nan), where=~confirmed)
+    return unchecked
 
 
 def run_opencv_matcher(

@@ -71,6 +71,7 @@ class CensusMatcher:
     """
 
     last_filled: BoolArray | None = None  # every value is measured
+    last_unchecked: BoolArray | None = None  # set by compute() when the band is checked
 
     def __init__(self, config: CensusConfig) -> None:
         self._config = config

@@ -22,6 +22,7 @@ class SadMatcher:
     """
 
     last_filled: BoolArray | None = None  # every value is measured
+    last_unchecked: BoolArray | None = None  # set by compute() when the band is checked
 
     def __init__(self, config: SadConfig) -> None:
         self._num_disparities = config.num_disparities
@@ -44,5 +45,5 @@ class SadMatcher:
         """Match a rectified grey pair; see :class:`avoidd.vision.matchers.base.Matcher`."""
         disparity = run_opencv_matcher(self._bm, left, right, self._pad, 0)
         if self._pad:  # the padded band keeps what the right view confirms, as for SGBM
-            confirm_band(left, right, disparity, self._num_disparities)
+            self.last_unchecked = confirm_band(left, right, disparity, self._num_disparities)
         return disparity

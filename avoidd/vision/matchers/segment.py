@@ -191,6 +191,7 @@ class SegmentMatcher:
             )
         )
         self.last_filled: BoolArray | None = None
+        self.last_unchecked: BoolArray | None = None
         """Pixels of the last result that were filled from a plane rather than measured."""
 
     @property

@@ -31,6 +31,7 @@ class SgbmMatcher:
     """
 
     last_filled: BoolArray | None = None  # every value is measured
+    last_unchecked: BoolArray | None = None  # set by compute() when the band is checked
 
     def __init__(self, config: SgbmConfig, *, confirm: bool = True) -> None:
         self._confirm = confirm and config.pad_left
@@ -61,5 +62,7 @@ class SgbmMatcher:
         """Match a rectified grey pair; see :class:`avoidd.vision.matchers.base.Matcher`."""
         disparity = run_opencv_matcher(self._sgbm, left, right, self._pad, self._min_disparity)
         if self._confirm:
-            confirm_band(left, right, disparity, self._num_disparities, self._min_disparity)
+            self.last_unchecked = confirm_band(
+                left, right, disparity, self._num_disparities, self._min_disparity
+            )
         return disparity
