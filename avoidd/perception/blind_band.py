@@ -76,9 +76,9 @@ def hidden_bins(
     if band_px <= 0 or not band_unresolved.any():
         return hidden
     focal_baseline = np.float32(rig.fx * rig.baseline_m)
-    shape = (rig.height, rig.width)
+    # The band is the image's first columns: the maps of those columns alone.
     forward, right, down = (
-        axis_per_depth(rig, shape, to_level, axis)[:, :band_px] for axis in (0, 1, 2)
+        axis_per_depth(rig, band_unresolved.shape, to_level, axis) for axis in (0, 1, 2)
     )
     columns = np.arange(band_px, dtype=np.float32)[None, :]
     # Rays below the level are left out: they meet the ground, which near the vehicle is in
