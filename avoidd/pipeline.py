@@ -27,7 +27,7 @@ from avoidd.types import (
     StereoFrame,
 )
 from avoidd.vision.calibration import Calibration
-from avoidd.vision.depth import depth_from_disparity, resolved_range_m
+from avoidd.vision.depth import depth_from_disparity, resolved_range_m, thin_range_m
 from avoidd.vision.matchers import create_matcher
 from avoidd.vision.nearfield import NearField, min_range_m
 from avoidd.vision.postprocess import postprocess_disparity
@@ -187,6 +187,11 @@ class HeadPipeline:
     def resolved_range_m(self) -> float:
         """Farthest range this head resolves (see :func:`avoidd.vision.depth.resolved_range_m`)."""
         return self._resolved_range_m
+
+    @property
+    def thin_range_m(self) -> float:
+        """How far this head reads its smallest obstacle (see :func:`thin_range_m`)."""
+        return thin_range_m(self.work_rig, self.sectors.min_size_m, self._resolved_range_m)
 
     def default_pose(self, frame: StereoFrame) -> FramePose:
         """The pose recorded with the frame, else the configured attitude and height."""

@@ -39,6 +39,7 @@ from tests.helpers import REPO, free_udp_port, open_udp_peer, synthetic_config, 
 
 UNIT = REPO / "systemd" / "avoidd.service"
 SIGNING = REPO / "systemd" / "avoidd-signing.conf"
+RECORD = REPO / "systemd" / "avoidd-record.conf"
 ROUTER = REPO / "systemd" / "mavlink-router.conf"
 ANALYZE = shutil.which("systemd-analyze")
 needs_analyze = pytest.mark.skipif(ANALYZE is None, reason="systemd-analyze is not installed")
@@ -78,6 +79,7 @@ def installed_copy(tmp_path: Path, drop_in: Path | None = None) -> Path:
     text = text.replace("/opt/avoidd/venv/bin/avoidd", str(executable))
     if drop_in is not None:
         extra = drop_in.read_text().partition("[Service]\n")[2]
+        extra = extra.replace("/opt/avoidd/venv/bin/avoidd", str(executable))
         text = text.replace("[Install]", extra + "\n[Install]")
     copy = tmp_path / "avoidd.service"
     copy.write_text(text)
@@ -85,7 +87,11 @@ def installed_copy(tmp_path: Path, drop_in: Path | None = None) -> Path:
 
 
 @needs_analyze
-@pytest.mark.parametrize("drop_in", [None, SIGNING], ids=["unit", "with signing drop-in"])
+@pytest.mark.parametrize(
+    "drop_in",
+    [None, SIGNING, RECORD],
+    ids=["unit", "with signing drop-in", "with recording drop-in"],
+)
 def test_the_unit_passes_systemd_analyze_verify(tmp_path: Path, drop_in: Path | None) -> None:
     assert ANALYZE is not None
     result = subprocess.run(
@@ -133,6 +139,27 @@ def test_the_signing_drop_in_hands_over_the_credential_the_config_names() -> Non
     assert source == "/etc/avoidd/signing.key"
     assert f"key_credential: {name}" in SIGNING.read_text()
     assert f"key_credential: {name}" in (REPO / "systemd" / "README.md").read_text()
+
+
+def test_the_recording_drop_in_records_where_the_unit_may_write(tmp_path: Path) -> None:
+    # The unit's file system is read-only but for its state folder: the drop-in's --record
+    # must lie there, its command line must be one `avoidd run` takes, and its folder pattern
+    # must give a new name per start.
+    from avoidd.cli import build_parser
+    from avoidd.record import expand_folder
+
+    reset, command = unit_settings(RECORD)["ExecStart"]
+    assert reset == ""  # the unit's own ExecStart= is replaced, not added to (Type=notify)
+    argv = command.replace("%%", "%").split()
+    assert argv[0] == unit_settings()["ExecStart"][0].split()[0]
+    args = build_parser("run").parse_args(argv[1:])
+    state = Path("/var/lib") / unit_settings()["StateDirectory"][0]
+    assert Path(args.record).is_relative_to(state), args.record
+    assert args.record_max_gb is not None and args.record_max_gb > 0
+    assert str(args.config) == unit_settings()["ExecStart"][0].split()[-1]
+    first = expand_folder(tmp_path / Path(args.record).name)
+    assert "%" not in first.name and first.name != Path(args.record).name
+    assert "avoidd-record.conf" in (REPO / "systemd" / "README.md").read_text()
 
 
 def test_the_mavlink_router_example_feeds_an_avoidd_udpin_link() -> None:

@@ -72,6 +72,8 @@ class AvoidanceLoop:
         link: Where the setpoints go.
         announce: STATUSTEXT reporter (severity, text, de-duplication key).
         max_range_m: A clear bin sees this far.
+        thin_range_m: Where the heads first read their smallest obstacle; the top speed is
+            cut to what can stop within it (None: no cut).
     """
 
     def __init__(
@@ -82,6 +84,7 @@ class AvoidanceLoop:
         link: MavLink,
         announce: Callable[[int, str, str | None], None],
         max_range_m: float,
+        thin_range_m: float | None = None,
     ) -> None:
         self.params = ParamTable(config, config.params_file)
         config = self.params.config
@@ -90,8 +93,9 @@ class AvoidanceLoop:
         self.vehicle = vehicle
         self.link = link
         self.announce = announce
-        self.cycle = PlanningCycle(config, max_range_m)
+        self.cycle = PlanningCycle(config, max_range_m, thin_range_m)
         self.planner = self.cycle.planner
+        self._report_speed_cut()
         goal = config.goal
         self.goal = Goal(goal.north_m, goal.east_m, goal.altitude_m) if goal else None
         self.goal_source = "config" if goal else "none"
@@ -393,6 +397,22 @@ class AvoidanceLoop:
         self.config = config
         self.vehicle.wants_origin = config.enabled
         self.cycle.reconfigure(config)
+        self._report_speed_cut()
+
+    def _report_speed_cut(self) -> None:
+        """Say so when the cameras cannot stop for the configured top speed."""
+        flown = self.planner.config.max_speed_m_s
+        if flown < self.config.max_speed_m_s and self.cycle.thin_range_m is not None:
+            logger.warning(
+                "avoidance: top speed %.1f m/s cut to %.1f m/s: the cameras first read their "
+                "smallest obstacle at %.1f m, and a stop from %.1f m/s must fit within that "
+                'less the %.1f m clearance (docs/perception.md, "Thin poles")',
+                self.config.max_speed_m_s,
+                flown,
+                self.cycle.thin_range_m,
+                flown,
+                self.planner.clearance_m,
+            )
 
     def set_goal(self, goal: Goal) -> None:
         """Fly to a new goal from now on (the obstacle memory is kept)."""

@@ -342,6 +342,7 @@ class Daemon:
             self.link,
             self.announce,
             self.outputs.max_cm / 100.0,
+            min((head.pipeline.thin_range_m for head in self.heads), default=None),
         )
         self.vehicle.on_command = self._command
         loops["avoidance"] = self.avoidance.run()

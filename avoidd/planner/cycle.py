@@ -15,6 +15,7 @@ from dataclasses import dataclass
 from avoidd.config import AvoidanceConfig
 from avoidd.planner.core import Decision, Goal, Planner, Pose
 from avoidd.planner.gating import Facts, Gate, Handover, gate
+from avoidd.planner.speed import perception_speed_m_s
 from avoidd.planner.track import track_velocity_ne
 from avoidd.types import LocalPosition, SectorScan, TrackPoint
 
@@ -113,17 +114,52 @@ def pose_at(
     )
 
 
+def within_sight(config: AvoidanceConfig, thin_range_m: float | None) -> AvoidanceConfig:
+    """The settings with the top speed cut to what the cameras can stop for.
+
+    Args:
+        config: The ``avoidance`` section.
+        thin_range_m: Where the heads first read their smallest obstacle; None: no cut
+            (exact distances, or no cameras to judge).
+
+    Returns:
+        ``config``, or a copy whose ``max_speed_m_s`` is
+        :func:`~avoidd.planner.speed.perception_speed_m_s` when that is lower.
+    """
+    if thin_range_m is None:
+        return config
+    limit = perception_speed_m_s(
+        thin_range_m,
+        config.vehicle_radius_m + config.margin_m,
+        config.max_accel_m_s2,
+        config.latency_ms / 1000.0,
+    )
+    if limit >= config.max_speed_m_s:
+        return config
+    # Never zero: the speed law still stops short of whatever is read.
+    return config.model_copy(update={"max_speed_m_s": max(limit, MIN_TOP_SPEED_M_S)})
+
+
+MIN_TOP_SPEED_M_S = 0.5
+"""The cut never goes below this (heads that read nothing thin beyond the clearance)."""
+
+
 class PlanningCycle:
     """The planner with its gate and the pilot's handover, stepped once per setpoint.
 
     Args:
         config: The ``avoidance`` section.
         max_range_m: The range a clear bin vouches for.
+        thin_range_m: Where the heads first read their smallest obstacle: the top speed is
+            cut to what can stop within it (:func:`within_sight`); None: no cut.
     """
 
-    def __init__(self, config: AvoidanceConfig, max_range_m: float) -> None:
+    def __init__(
+        self, config: AvoidanceConfig, max_range_m: float, thin_range_m: float | None = None
+    ) -> None:
         self.config = config
-        self.planner = Planner(config, max_range_m)
+        self.thin_range_m = thin_range_m
+        self.planner = Planner(within_sight(config, thin_range_m), max_range_m)
         self.handover = Handover()
         self._flying = False
         self._switched_off_ns = -(10**18)
@@ -131,7 +167,7 @@ class PlanningCycle:
     def reconfigure(self, config: AvoidanceConfig) -> None:
         """Take new settings (parameters set in flight)."""
         self.config = config
-        self.planner.reconfigure(config)
+        self.planner.reconfigure(within_sight(config, self.thin_range_m))
 
     def new_goal(self) -> None:
         """A new goal: the pilot's takeover is forgotten, the planner starts over."""

@@ -18,6 +18,27 @@ def stopping_speed_m_s(free_m: float, accel_m_s2: float, latency_s: float) -> fl
     return -a * t + math.sqrt(a * a * t * t + 2.0 * a * free_m)
 
 
+def perception_speed_m_s(
+    thin_range_m: float, clearance_m: float, accel_m_s2: float, latency_s: float
+) -> float:
+    """The top speed the cameras can stop for: what is first read at ``thin_range_m``.
+
+    The speed law stops short of what has been read; an obstacle not read yet cannot slow the
+    vehicle. The thinnest obstacle the heads promise is first read at ``thin_range_m``, so the
+    vehicle must be able to stop within that less its clearance after ``latency_s``.
+
+    Args:
+        thin_range_m: Where the heads first read their smallest obstacle.
+        clearance_m: Vehicle radius plus margin.
+        accel_m_s2: Deceleration available.
+        latency_s: Capture to the vehicle acting on a setpoint.
+
+    Returns:
+        m/s (0 when the range is within the clearance).
+    """
+    return stopping_speed_m_s(thin_range_m - clearance_m, accel_m_s2, latency_s)
+
+
 AUTOPILOT_RESPONSE_S = DEFAULT.autopilot_response_s
 """Time an autopilot's velocity controller takes to act on a new setpoint (part of latency)."""
 

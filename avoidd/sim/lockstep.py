@@ -92,9 +92,6 @@ class LockstepRun:
         self.goal: Goal | None = goal
         self.seed = seed
         avoidance = scenario.avoidance
-        self.cycle = PlanningCycle(avoidance, MAX_RANGE_M)
-        self.planner = self.cycle.planner
-        self.cycle.new_goal()  # the goal is given before the first cycle
         self.autopilot = SimAutopilot(
             flavour=scenario.autopilot,
             mode="GUIDED" if scenario.autopilot == "ardupilot" else "POSCTL",
@@ -110,6 +107,19 @@ class LockstepRun:
             wind_m_s=scenario.wind_m_s,
         )
         self.heads = [self._head(camera, seed + k) for k, camera in enumerate(scenario.cameras)]
+        # As the daemon: the top speed is what the rendered cameras can stop for (exact
+        # distances see every pole, so they cut nothing).
+        thin_m = min(
+            (
+                head.perceive.pipeline.thin_range_m
+                for head in self.heads
+                if isinstance(head.perceive, StereoPerception)
+            ),
+            default=None,
+        )
+        self.cycle = PlanningCycle(avoidance, MAX_RANGE_M, thin_m)
+        self.planner = self.cycle.planner
+        self.cycle.new_goal()  # the goal is given before the first cycle
         self.rows: list[Row] = []
         self._latest: tuple[SectorScan, float] | None = None
         """The heads' fresh scans merged, with the yaw at the newest capture (None: stale)."""

@@ -21,6 +21,27 @@ def resolved_range_m(rig: RectifiedRig, disparity_error_px: float) -> float:
     return rig.fx * rig.baseline_m / (2.0 * disparity_error_px)
 
 
+THIN_MIN_PX = 1.25
+"""Width in pixels from which an obstacle is counted on to be read. On the rendered rigs a 5 cm
+pole was first read at about 1 px wide (9.8 m at f = 200 px, 19-21 m at f = 400 px) and then in
+only about half the frames (docs/perception.md, "Thin poles"): a quarter pixel more is the
+margin."""
+
+
+def thin_range_m(rig: RectifiedRig, width_m: float, resolved_m: float) -> float:
+    """How far an obstacle ``width_m`` wide is read: where it spans :data:`THIN_MIN_PX`.
+
+    Args:
+        rig: The rig of the images the matcher sees.
+        width_m: The obstacle's width (``sectors.min_size_m``: the smallest promised).
+        resolved_m: The head's resolved range (:func:`resolved_range_m`), a ceiling.
+
+    Returns:
+        Metres.
+    """
+    return min(rig.fx * width_m / THIN_MIN_PX, resolved_m)
+
+
 def depth_from_disparity(disparity_px: FloatArray, rig: RectifiedRig) -> FloatArray:
     """Convert a disparity map to depth along the optical axis.
 
