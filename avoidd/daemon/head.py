@@ -169,6 +169,8 @@ class Head:
         self.slot: LatestSlot[StereoFrame] = LatestSlot(loop)
         self.latest: HeadResult | None = None
         self.latest_scan: SectorScan | None = None
+        self.on_result: Callable[[], None] | None = None
+        """Called (in the event loop) each time a new scan is published."""
         self.stats = HeadStats()
         self.ended = False
         self.last_frame_ns: int | None = None
@@ -422,6 +424,8 @@ class Head:
         self.latest = result
         self.stats.processed += 1
         self.stats.latency_ms.append((time.monotonic_ns() - result.t_capture_ns) / 1e6)
+        if self.on_result is not None:
+            self.on_result()
 
     async def _guarded(
         self, pool: ThreadPoolExecutor, frame: StereoFrame, stage: Callable[..., _R], *args: object

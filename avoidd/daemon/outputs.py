@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import asyncio
+import contextlib
 import logging
 import math
 import time
@@ -53,6 +54,41 @@ async def every(rate_hz: float, send: Callable[[], None]) -> None:
             next_s = time.monotonic()
             delay_s = 0.0
         await asyncio.sleep(max(delay_s, 0.0))
+
+
+REPEAT_S = 0.2
+"""Without a new scan, the last message goes again after this long (both autopilots drop the
+data 0.5 s after the last message)."""
+
+
+async def when_ready(
+    ready: asyncio.Event, rate_hz: float, send: Callable[[], None], repeat_s: float = REPEAT_S
+) -> None:
+    """Call ``send`` as soon as ``ready`` is set, at most ``rate_hz`` times a second, forever.
+
+    Without ``ready`` being set, ``send`` is called again ``repeat_s`` (at least one period)
+    after the last call.
+
+    Args:
+        ready: Set when there is something new to send; cleared here before each call.
+        rate_hz: Most calls per second.
+        send: What to call; it must not block.
+        repeat_s: Longest time between calls.
+    """
+    period_s = 1.0 / rate_hz
+    repeat_s = max(repeat_s, period_s)
+    last_s = -math.inf
+    while True:
+        wait_s = last_s + repeat_s - time.monotonic()
+        if wait_s > 0.0 and not ready.is_set():
+            with contextlib.suppress(TimeoutError):
+                await asyncio.wait_for(ready.wait(), wait_s)
+        early_s = last_s + period_s - time.monotonic()
+        if early_s > 0.0:
+            await asyncio.sleep(early_s)  # the rate limit
+        ready.clear()
+        send()
+        last_s = time.monotonic()
 
 
 def current_scan(heads: Sequence[Head], now_ns: int, max_age_ns: int) -> SectorScan | None:
@@ -110,6 +146,9 @@ class Outputs:
         """The bins some head's field of view covers."""
         for head in heads:
             self.in_view |= covered_bins(head.pipeline.work_rig, head.pipeline.mount)
+        self._scan_ready = asyncio.Event()
+        for head in heads:
+            head.on_result = self._scan_ready.set
 
     def current_scan(self, now_ns: int) -> SectorScan | None:
         """The heads' fresh scans merged (see :func:`current_scan`)."""
@@ -185,7 +224,12 @@ class Outputs:
         )
 
     async def obstacle_distance(self) -> None:
-        """Send OBSTACLE_DISTANCE at its rate (see :meth:`obstacle_distance_message`)."""
+        """Send OBSTACLE_DISTANCE as each new scan is made (see :meth:`obstacle_distance_message`).
+
+        At most ``rate_hz`` a second; without a new scan the message goes again after
+        :data:`REPEAT_S`, so a scan never waits for a send tick and the autopilot never goes
+        without a message for its 0.5 s timeout.
+        """
 
         def send() -> None:
             now_ns = time.monotonic_ns()
@@ -194,7 +238,7 @@ class Outputs:
                 self.link.send(message)
                 self.last_sent = (now_ns, message)
 
-        await every(self.config.obstacle_distance.rate_hz, send)
+        await when_ready(self._scan_ready, self.config.obstacle_distance.rate_hz, send)
 
     def sends_distance_sensor(self) -> bool:
         """Whether DISTANCE_SENSOR goes to the autopilot on the link now.
