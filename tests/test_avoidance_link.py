@@ -18,11 +18,11 @@ from avoidd.config import AvoidanceConfig, GoalConfig
 from avoidd.daemon.avoidance import VELOCITY_YAW_RATE_MASK, AvoidanceLoop
 from avoidd.daemon.stats import log_line
 from avoidd.mavlink import codec as mav
-from avoidd.mavlink.goto import LocalGoal, send_goal
+from avoidd.mavlink.goto import GlobalGoal, LocalGoal, send_goal
 from avoidd.mavlink.mission import MissionItem
 from avoidd.mavlink.mock_autopilot import MockAutopilot
 from avoidd.planner.core import Goal
-from tests.helpers import free_udp_port, start_hub, synthetic_config, wait_for
+from tests.helpers import free_udp_port, open_udp_peer, start_hub, synthetic_config, wait_for
 from tests.helpers import start_daemon as start
 from tests.helpers import stop_daemon as stop
 
@@ -507,6 +507,102 @@ async def test_the_mission_is_downloaded_despite_losses_flown_in_order_and_read_
         await autopilot.stop()
 
 
+async def test_goto_reaches_avoidd_through_its_own_ground_station_endpoint(
+    tmp_path: Path,
+) -> None:
+    # No router: the autopilot on avoidd's link, `goto` on avoidd's ground-station endpoint.
+    autopilot = MockAutopilot(system_id=7, mode="GUIDED", armed=True, origin=ORIGIN)
+    port, gcs_port = free_udp_port(), free_udp_port()
+    await autopilot.start(f"udpin:127.0.0.1:{port}")
+    sections = {
+        "avoidance": {"enabled": True},
+        "mavlink": {
+            "connection": f"udpout:127.0.0.1:{port}",
+            "gcs_connection": f"udpin:127.0.0.1:{gcs_port}",
+        },
+    }
+    config = synthetic_config(tmp_path, f"udpout:127.0.0.1:{port}", sections=sections)
+    daemon, task = await start(config)
+    try:
+        assert await wait_for(lambda: daemon.vehicle.origin is not None, 10)
+        where = f"udpout:127.0.0.1:{gcs_port}"
+        answer = await send_goal(where, LocalGoal(12.0, -4.0, 3.0), None, 20.0)
+        assert (answer.accepted, answer.system_id) == (True, 7), answer.text
+        assert daemon.avoidance.goal == Goal(12.0, -4.0, 3.0, "GCS goal")
+        # A global goal avoidd refuses: the reason comes through the endpoint too.
+        lat, lon = ORIGIN[0] + 0.0005, ORIGIN[1]
+        refused = await send_goal(where, GlobalGoal(lat, lon, 0.2), None, 20.0)
+        assert refused.accepted is False
+        assert refused.text == "refused (MAV_RESULT_DENIED): less than 0.5 m above ground"
+        # The ground station heard the autopilot through avoidd, and what it sent reached the
+        # autopilot (its HEARTBEAT, forwarded unchanged).
+        assert daemon.gcs is not None
+        counts = daemon.gcs.counters()
+        assert counts["to_autopilot"] > 0 and counts["to_gcs"] > 0
+        assert any(m.get_srcSystem() == 255 for m in autopilot.of_type("HEARTBEAT"))
+        # A ground station there hears the autopilot itself (forwarded) as well as avoidd.
+        station = await open_udp_peer()
+        gcs = mav.Codec(255, 190)
+        beat = gcs.build(
+            "HEARTBEAT", mav.MAV_TYPE_GCS, mav.MAV_AUTOPILOT_INVALID, 0, 0, mav.MAV_STATE_ACTIVE
+        )
+        station.transport.sendto(gcs.pack(beat), ("127.0.0.1", gcs_port))
+
+        def heard(component: int) -> bool:
+            return any(
+                (m.get_srcSystem(), m.get_srcComponent()) == (7, component)
+                for m in station.of_type("HEARTBEAT")
+            )
+
+        try:
+            assert await wait_for(lambda: heard(1) and heard(196), 10)
+        finally:
+            station.close()
+    finally:
+        await stop(daemon, task)
+        await autopilot.stop()
+
+
+async def test_the_ground_station_endpoint_takes_no_command_the_link_would_not(
+    tmp_path: Path,
+) -> None:
+    # The same trust rule as the autopilot's link: a sender that is neither the vehicle nor a
+    # configured ground station commands nothing through the endpoint either.
+    autopilot = MockAutopilot(system_id=7, mode="GUIDED", armed=True, origin=ORIGIN)
+    port, gcs_port = free_udp_port(), free_udp_port()
+    await autopilot.start(f"udpin:127.0.0.1:{port}")
+    sections = {
+        "avoidance": {"enabled": True},
+        "mavlink": {
+            "connection": f"udpout:127.0.0.1:{port}",
+            "gcs_connection": f"udpin:127.0.0.1:{gcs_port}",
+            "control": {"ground_stations": [250]},
+        },
+    }
+    config = synthetic_config(tmp_path, f"udpout:127.0.0.1:{port}", sections=sections)
+    daemon, task = await start(config)
+    try:
+        assert await wait_for(lambda: daemon.vehicle.origin is not None, 10)
+        answer = await send_goal(
+            f"udpout:127.0.0.1:{gcs_port}", LocalGoal(12.0, -4.0, 3.0), None, 3.0
+        )
+        assert answer.accepted is None and answer.system_id == 7  # heard, not obeyed
+        assert answer.text.startswith("avoidd (system 7) heard, but it did not answer")
+        assert daemon.avoidance.goal is None
+        assert daemon.vehicle.refused_commands["sender"] > 0
+    finally:
+        await stop(daemon, task)
+        await autopilot.stop()
+
+
+async def test_goto_tells_no_avoidd_heard_from_avoidd_silent() -> None:
+    # Nothing answers on the port: "no avoidd heard", with what to check.
+    port = free_udp_port()
+    answer = await send_goal(f"udpout:127.0.0.1:{port}", LocalGoal(1.0, 0.0, 2.0), None, 1.0)
+    assert answer.accepted is None and answer.system_id is None
+    assert answer.text.startswith("no avoidd heard within 1 s: nothing from MAVLink component 196")
+
+
 async def test_goto_reaches_avoidd_through_a_router_like_a_ground_station(tmp_path: Path) -> None:
     hub = await start_hub()
     autopilot = MockAutopilot(system_id=7, mode="GUIDED", armed=True, origin=ORIGIN)
@@ -527,13 +623,18 @@ async def test_goto_reaches_avoidd_through_a_router_like_a_ground_station(tmp_pa
         where = f"udpout:127.0.0.1:{hub.port}"
         for args, code, text in [
             (["--global", str(lat), str(lon), "6"], 0, "MAV_RESULT_ACCEPTED"),
-            (["--global", str(lat), str(lon), "0.2"], 1, "MAV_RESULT_DENIED"),
+            # The refusal says why: the reason of avoidd's STATUSTEXT with the ACK's result.
+            (["--global", str(lat), str(lon), "0.2"], 1, "refused (MAV_RESULT_DENIED): "),
         ]:
             process = await asyncio.create_subprocess_exec(
                 *command, where, *args, "--timeout", "20", stdout=asyncio.subprocess.PIPE
             )
             out, _ = await process.communicate()
-            assert (process.returncode, out.decode().strip()) == (code, text)
+            said = out.decode().strip()
+            assert process.returncode == code and said.startswith(text), said
+            assert "no reason given" not in said
+            if code:
+                assert len(said) > len(text) + 5, said
         assert daemon.avoidance.goal.north_m == pytest.approx(55.66, abs=0.05)
         assert daemon.avoidance.goal.altitude_m == pytest.approx(6.0)
     finally:

@@ -14,8 +14,8 @@ def configure(name: str, parser: argparse.ArgumentParser) -> None:
     """Add the options of ``goto``."""
     parser.add_argument(
         "connection",
-        help="where avoidd's MAVLink can be reached, e.g. udpout:127.0.0.1:14551 (a router's "
-        "ground-station endpoint)",
+        help="where avoidd's MAVLink can be reached, e.g. udpout:127.0.0.1:14551 (avoidd's own "
+        "mavlink.gcs_connection, or a router's ground-station endpoint)",
     )
     where = parser.add_mutually_exclusive_group(required=True)
     where.add_argument(

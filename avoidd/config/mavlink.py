@@ -207,9 +207,14 @@ class MavlinkConfig(Strict):
             ``HOST:PORT``) heard as the autopilot: every other sender is ignored from its
             first datagram on, and nothing is sent to it. Without it the first sender of a
             heartbeat avoidd adopts becomes the autopilot (see docs/mavlink.md, "Links").
+        gcs_connection: A ground-station endpoint of avoidd's own, as a MAVLink router's
+            (e.g. ``udpin:127.0.0.1:14551``): a ground station or ``avoidd goto`` there talks
+            to the autopilot through avoidd and sends avoidd goals; it hears avoidd and the
+            autopilot (``avoidd.mavlink.gcs``). None: no endpoint (use a router).
     """
 
     connection: str | None = None
+    gcs_connection: str | None = None
     autopilot_address: str | None = None
     system_id: int | Literal["auto"] = "auto"
     component_id: int = Field(196, ge=1, le=255)
@@ -233,7 +238,7 @@ class MavlinkConfig(Strict):
             return value
         raise ValueError("a system id is a number from 1 to 255 (no quotes), or auto")
 
-    @field_validator("connection")
+    @field_validator("connection", "gcs_connection")
     @classmethod
     def _connection(cls, value: str | None) -> str | None:
         if value is not None:
@@ -246,6 +251,15 @@ class MavlinkConfig(Strict):
         if value is not None:
             parse_address(value)
         return value
+
+    @model_validator(mode="after")
+    def _gcs_apart(self) -> MavlinkConfig:
+        if self.gcs_connection is not None and self.gcs_connection == self.connection:
+            raise ValueError(
+                "gcs_connection is the autopilot's own connection; give the ground stations "
+                "another port (e.g. udpin:127.0.0.1:14551)"
+            )
+        return self
 
     @model_validator(mode="after")
     def _address_needs_udpin(self) -> MavlinkConfig:

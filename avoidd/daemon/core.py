@@ -17,6 +17,7 @@ import cv2
 
 from avoidd import foreignlog, sources
 from avoidd.config import AppConfig, MavlinkConfig, SimSourceConfig, SourceConfig
+from avoidd.config.connection import parse_connection
 from avoidd.daemon import health
 from avoidd.daemon.announce import Announcer, send_statustext
 from avoidd.daemon.avoidance import AvoidanceLoop
@@ -29,6 +30,7 @@ from avoidd.daemon.systemd import ServiceReporter
 from avoidd.errors import AvoiddError
 from avoidd.loading import obstacle_range_cm
 from avoidd.mavlink import codec as mav
+from avoidd.mavlink.gcs import GcsEndpoint
 from avoidd.mavlink.link import MavLink
 from avoidd.mavlink.senders import AddressPin
 from avoidd.mavlink.signed import keep_timestamps, sign_link
@@ -115,6 +117,14 @@ class Daemon:
         self._timestamps = sign_link(self.codec, mavlink.signing)
         self._announcer: Announcer | None = None
         self.vehicle = Vehicle(self.link, mavlink, self.announce)
+        self.gcs: GcsEndpoint | None = None
+        """The ground-station endpoint (``mavlink.gcs_connection``), if configured."""
+        if mavlink.gcs_connection is not None:
+            # What ground stations send is taken as the autopilot's link takes it: the same
+            # trust rule decides what commands avoidd.
+            self.gcs = GcsEndpoint(
+                parse_connection(mavlink.gcs_connection), self.link, self.vehicle.handle
+            )
         self.codec.instance = instance_id()
         self.twins = TwinWatch(self.link, self.codec.instance, self.announce)
         """Another sender speaking as avoidd's system and component (a second daemon)."""
@@ -182,6 +192,9 @@ class Daemon:
             logger.exception("avoidd ended with an error")
         # Cancelled or failed part-way through its shutdown, the run may not have closed its
         # link: a udpin port left bound would refuse the next daemon (a simulation's next run).
+        with contextlib.suppress(Exception):
+            if self.gcs is not None:
+                await self.gcs.close()
         with contextlib.suppress(Exception):
             await self.link.close()
         return None
@@ -260,6 +273,13 @@ class Daemon:
         except AvoiddError as exc:
             logger.error("%s", exc)
             return 1
+        if self.gcs is not None:
+            try:
+                await self.gcs.open()
+            except AvoiddError as exc:
+                # Flying comes first: without the endpoint avoidd still feeds the autopilot.
+                logger.error("%s; running without the ground-station endpoint", exc)
+                self.gcs = None
         self._started_ns = time.monotonic_ns()
         self._say_started()
         announcer(mav.MAV_SEVERITY_INFO, "avoidd started")
@@ -295,6 +315,8 @@ class Daemon:
             for head in self.heads:
                 await asyncio.to_thread(head.join, 5.0)
             await asyncio.sleep(0.05)  # let the sender flush what is queued
+            if self.gcs is not None:
+                await self.gcs.close()
             await self.link.close()
             self._timestamps.keep(self.codec.signing_timestamp, force=True)
             cv2.setNumThreads(previous_threads)

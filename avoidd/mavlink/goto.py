@@ -6,7 +6,11 @@ the goal addressed to that component once a second until avoidd answers:
 
 - a local goal as ``SET_POSITION_TARGET_LOCAL_NED``: the answer is avoidd's STATUSTEXT
   ("avoidd: goal N.. E.. A.." or "avoidd: goal refused: ...");
-- a global goal as ``COMMAND_INT`` ``MAV_CMD_DO_REPOSITION``: the answer is COMMAND_ACK.
+- a global goal as ``COMMAND_INT`` ``MAV_CMD_DO_REPOSITION``: the answer is COMMAND_ACK, and
+  a refusal's reason is the STATUSTEXT avoidd sends with it.
+
+Without an answer the text says which of two things happened: no avoidd was heard at all
+(nothing from component 196 reached the connection), or avoidd was heard and did not answer.
 """
 
 from __future__ import annotations
@@ -24,6 +28,9 @@ GCS_SYSTEM_ID = 255
 GCS_COMPONENT_ID = 190  # MAV_COMP_ID_MISSIONPLANNER
 _POSITION_ONLY = 0x0FF8
 _RESEND_S = 1.0
+_REASON_WAIT_S = 1.0
+"""How long a refusal's COMMAND_ACK waits for the STATUSTEXT that says why."""
+_REFUSED = "avoidd: goal refused: "
 
 
 @dataclass(frozen=True)
@@ -80,7 +87,7 @@ def _answer(message: mav.Message, goal: LocalGoal | GlobalGoal) -> tuple[bool, s
     kind = message.get_type()
     if isinstance(goal, LocalGoal) and kind == "STATUSTEXT":
         text = str(message.text)
-        if text.startswith("avoidd: goal refused"):
+        if text.startswith(_REFUSED):
             return False, text
         if text.startswith("avoidd: goal N"):
             return True, text
@@ -92,6 +99,24 @@ def _answer(message: mav.Message, goal: LocalGoal | GlobalGoal) -> tuple[bool, s
             return None
         name = mav.result_name(int(message.result))
         return message.result == mav.MAV_RESULT_ACCEPTED, name
+    return None
+
+
+async def _reason(heard: asyncio.Queue[mav.Message], target: int, deadline: float) -> str | None:
+    """The reason of a refusal: avoidd's STATUSTEXT, waited for a little after its ACK."""
+    until = min(deadline, time.monotonic() + _REASON_WAIT_S)
+    while (left := until - time.monotonic()) > 0:
+        try:
+            message = await asyncio.wait_for(heard.get(), left)
+        except TimeoutError:
+            break
+        if (
+            message.get_srcSystem() == target
+            and message.get_srcComponent() == mav.MAV_COMP_ID_OBSTACLE_AVOIDANCE
+            and message.get_type() == "STATUSTEXT"
+            and str(message.text).startswith(_REFUSED)
+        ):
+            return str(message.text)[len(_REFUSED) :]
     return None
 
 
@@ -126,6 +151,7 @@ async def send_goal(
         "HEARTBEAT", mav.MAV_TYPE_GCS, mav.MAV_AUTOPILOT_INVALID, 0, 0, mav.MAV_STATE_ACTIVE
     )
     target = system_id
+    reason: str | None = None
     deadline = time.monotonic() + timeout_s
     next_send = 0.0
     try:
@@ -148,9 +174,31 @@ async def send_goal(
                 continue
             if message.get_srcSystem() != target:
                 continue
+            if message.get_type() == "STATUSTEXT" and str(message.text).startswith(_REFUSED):
+                reason = str(message.text)[len(_REFUSED) :]
             answer = _answer(message, goal)
-            if answer is not None:
-                return Answer(answer[0], answer[1], target)
-        return Answer(None, "no answer from avoidd", target)
+            if answer is None:
+                continue
+            accepted, text = answer
+            if isinstance(goal, GlobalGoal) and not accepted:
+                if reason is None and target is not None:
+                    reason = await _reason(heard, target, deadline)
+                text = f"refused ({text}): {reason or 'no reason given'}"
+            return Answer(accepted, text, target)
+        if target is None:
+            return Answer(
+                None,
+                f"no avoidd heard within {timeout_s:g} s: nothing from MAVLink component "
+                f"{mav.MAV_COMP_ID_OBSTACLE_AVOIDANCE} reached {connection} (is avoidd running, "
+                "and does this connection reach its link? a MAVLink router's ground-station "
+                "endpoint does; see docs/integration.md)",
+                None,
+            )
+        return Answer(
+            None,
+            f"avoidd (system {target}) heard, but it did not answer the goal within "
+            f"{timeout_s:g} s (its log says why)",
+            target,
+        )
     finally:
         await transport.close()

@@ -116,6 +116,9 @@ class MavLink:
         self._queue_size = queue_size
         self._wake = asyncio.Event()
         self._handlers: list[Handler] = []
+        self._mirrors: list[Callable[[bytes], None]] = []
+        self.forwarded = 0
+        """Datagrams from another endpoint sent on to the autopilot (:meth:`send_raw`)."""
         self._sender: asyncio.Task[None] | None = None
 
     @property
@@ -136,6 +139,30 @@ class MavLink:
     def subscribe(self, handler: Handler) -> None:
         """Call ``handler`` with every message decoded from now on."""
         self._handlers.append(handler)
+
+    def mirror(self, forward: Callable[[bytes], None]) -> None:
+        """Also hand ``forward`` what avoidd sends and what the adopted autopilot sends.
+
+        Packed messages of avoidd's and the autopilot's datagrams as received: what a
+        ground-station endpoint (:mod:`avoidd.mavlink.gcs`) passes on.
+        """
+        self._mirrors.append(forward)
+
+    def unmirror(self, forward: Callable[[bytes], None]) -> None:
+        """Stop handing bytes to ``forward``."""
+        if forward in self._mirrors:
+            self._mirrors.remove(forward)
+
+    def send_raw(self, data: bytes) -> bool:
+        """Send bytes another endpoint received on to the autopilot, unchanged.
+
+        Returns:
+            False when they were dropped (the link cannot send yet).
+        """
+        if not self.transport.connected or not self.transport.send(data):
+            return False
+        self.forwarded += 1
+        return True
 
     async def open(self) -> None:
         """Open the transport and start the sender.
@@ -168,10 +195,13 @@ class MavLink:
             while self._urgent or self._normal:
                 message = self._urgent.popleft() if self._urgent else self._normal.popleft()
                 kind = message.get_type()
-                if self.transport.send(self.codec.pack(message)):
+                packed = self.codec.pack(message)
+                if self.transport.send(packed):
                     self.sent[kind] += 1
                 else:
                     self.dropped[kind] += 1
+                for forward in self._mirrors:
+                    forward(packed)
 
     def _on_bytes(self, data: bytes, sender: Sender = None) -> None:
         received_ns = time.monotonic_ns()
@@ -194,6 +224,9 @@ class MavLink:
             self._autopilot_heard_ns = received_ns
         if not self._locked and not self.budget.allows(sender, received_ns):
             return  # a flood from a sender not adopted: dropped unread (counted)
+        if self._locked and sender == self.autopilot_sender:
+            for forward in self._mirrors:
+                forward(data)  # the autopilot's own bytes, to a ground-station endpoint
         self.bytes_received += len(data)
         parser = self._parser(sender)
         errors, rejects = parser.parse_errors, parser.signature_rejects
