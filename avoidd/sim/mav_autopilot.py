@@ -22,6 +22,7 @@ import numpy as np
 from pymavlink import mavutil
 
 from avoidd.mavlink import codec as mav
+from avoidd.mavlink.geo import GlobalPoint, offset_lat_lon
 from avoidd.mavlink.mock_autopilot import MockAutopilot, Recorded
 from avoidd.sim.flight import SimAutopilot
 from avoidd.sim.vehicle import Multirotor
@@ -100,7 +101,7 @@ class SimulatedAutopilot(MockAutopilot):
         self.armed = self.rules.armed
 
     def stream_message(self, msg_id: int) -> mav.Message | None:
-        """ATTITUDE, LOCAL_POSITION_NED and DISTANCE_SENSOR from the simulated state."""
+        """ATTITUDE, LOCAL_POSITION_NED, GLOBAL_POSITION_INT, DISTANCE_SENSOR of the state."""
         state = self.vehicle.state
         t_ms = self.boot_ms()
         name = mav.message_name(msg_id)
@@ -115,12 +116,35 @@ class SimulatedAutopilot(MockAutopilot):
             north, east, down = self._noisy(tuple(position), self.position_noise_m)
             vn, ve, vd = (float(v) for v in state.velocity_m_s)
             return self.codec.build("LOCAL_POSITION_NED", t_ms, north, east, down, vn, ve, vd)
+        if name == "GLOBAL_POSITION_INT" and self.origin is not None:
+            return self._global_position(t_ms)
         if name == "DISTANCE_SENSOR":
             height_cm = max(1, round(state.altitude_m * 100))
             return self.codec.distance_sensor(
                 t_ms, 10, 4000, min(height_cm, 4000), mav.MAV_SENSOR_ROTATION_PITCH_270, 100
             )
         return super().stream_message(msg_id)
+
+    def _global_position(self, t_ms: int) -> mav.Message:
+        """GLOBAL_POSITION_INT of the simulated state around the origin (what a map shows)."""
+        assert self.origin is not None
+        state = self.vehicle.state
+        north, east = float(state.position_m[0]), float(state.position_m[1])
+        lat_deg, lon_deg = offset_lat_lon(GlobalPoint(*self.origin), north, east)
+        vn, ve, vd = (round(float(v) * 100) for v in state.velocity_m_s)
+        heading_cdeg = round(math.degrees(state.yaw_rad) % 360.0 * 100) % 36000
+        return self.codec.build(
+            "GLOBAL_POSITION_INT",
+            t_ms,
+            round(lat_deg * 1e7),
+            round(lon_deg * 1e7),
+            round((self.origin[2] + state.altitude_m) * 1000),
+            round((state.altitude_m - self.home_up_m) * 1000),
+            vn,
+            ve,
+            vd,
+            heading_cdeg,
+        )
 
     def _noisy(self, values: tuple[float, ...], std: float) -> tuple[float, ...]:
         if std <= 0.0:
