@@ -4,10 +4,12 @@ mode, arming and link, PX4 prestream, the message's frame, mask and target."""
 from __future__ import annotations
 
 import asyncio
+import contextlib
 import json
 import math
 import sys
 import time
+from collections.abc import AsyncIterator
 from pathlib import Path
 from types import SimpleNamespace
 from typing import Any
@@ -507,24 +509,37 @@ async def test_the_mission_is_downloaded_despite_losses_flown_in_order_and_read_
         await autopilot.stop()
 
 
-async def test_goto_reaches_avoidd_through_its_own_ground_station_endpoint(
-    tmp_path: Path,
-) -> None:
-    # No router: the autopilot on avoidd's link, `goto` on avoidd's ground-station endpoint.
+@contextlib.asynccontextmanager
+async def _behind_endpoint(
+    tmp_path: Path, mavlink: dict[str, Any] | None = None
+) -> AsyncIterator[tuple[MockAutopilot, Any, int]]:
+    """No router: the autopilot on avoidd's link, a ground-station endpoint of avoidd's own.
+
+    Yields the autopilot, the daemon (once it knows the origin) and the endpoint's port.
+    """
     autopilot = MockAutopilot(system_id=7, mode="GUIDED", armed=True, origin=ORIGIN)
     port, gcs_port = free_udp_port(), free_udp_port()
     await autopilot.start(f"udpin:127.0.0.1:{port}")
-    sections = {
-        "avoidance": {"enabled": True},
-        "mavlink": {
-            "connection": f"udpout:127.0.0.1:{port}",
-            "gcs_connection": f"udpin:127.0.0.1:{gcs_port}",
-        },
+    link = {
+        "connection": f"udpout:127.0.0.1:{port}",
+        "gcs_connection": f"udpin:127.0.0.1:{gcs_port}",
+        **(mavlink or {}),
     }
+    sections = {"avoidance": {"enabled": True}, "mavlink": link}
     config = synthetic_config(tmp_path, f"udpout:127.0.0.1:{port}", sections=sections)
     daemon, task = await start(config)
     try:
         assert await wait_for(lambda: daemon.vehicle.origin is not None, 10)
+        yield autopilot, daemon, gcs_port
+    finally:
+        await stop(daemon, task)
+        await autopilot.stop()
+
+
+async def test_goto_reaches_avoidd_through_its_own_ground_station_endpoint(
+    tmp_path: Path,
+) -> None:
+    async with _behind_endpoint(tmp_path) as (autopilot, daemon, gcs_port):
         where = f"udpout:127.0.0.1:{gcs_port}"
         answer = await send_goal(where, LocalGoal(12.0, -4.0, 3.0), None, 20.0)
         assert (answer.accepted, answer.system_id) == (True, 7), answer.text
@@ -534,9 +549,7 @@ async def test_goto_reaches_avoidd_through_its_own_ground_station_endpoint(
         refused = await send_goal(where, GlobalGoal(lat, lon, 0.2), None, 20.0)
         assert refused.accepted is False
         assert refused.text == "refused (MAV_RESULT_DENIED): less than 0.5 m above ground"
-        # The ground station heard the autopilot through avoidd, and what it sent reached the
-        # autopilot (its HEARTBEAT, forwarded unchanged).
-        assert daemon.gcs is not None
+        # What the ground station sent reached the autopilot (its HEARTBEAT, unchanged).
         counts = daemon.gcs.counters()
         assert counts["to_autopilot"] > 0 and counts["to_gcs"] > 0
         assert any(m.get_srcSystem() == 255 for m in autopilot.of_type("HEARTBEAT"))
@@ -558,9 +571,6 @@ async def test_goto_reaches_avoidd_through_its_own_ground_station_endpoint(
             assert await wait_for(lambda: heard(1) and heard(196), 10)
         finally:
             station.close()
-    finally:
-        await stop(daemon, task)
-        await autopilot.stop()
 
 
 async def test_the_ground_station_endpoint_takes_no_command_the_link_would_not(
@@ -568,21 +578,8 @@ async def test_the_ground_station_endpoint_takes_no_command_the_link_would_not(
 ) -> None:
     # The same trust rule as the autopilot's link: a sender that is neither the vehicle nor a
     # configured ground station commands nothing through the endpoint either.
-    autopilot = MockAutopilot(system_id=7, mode="GUIDED", armed=True, origin=ORIGIN)
-    port, gcs_port = free_udp_port(), free_udp_port()
-    await autopilot.start(f"udpin:127.0.0.1:{port}")
-    sections = {
-        "avoidance": {"enabled": True},
-        "mavlink": {
-            "connection": f"udpout:127.0.0.1:{port}",
-            "gcs_connection": f"udpin:127.0.0.1:{gcs_port}",
-            "control": {"ground_stations": [250]},
-        },
-    }
-    config = synthetic_config(tmp_path, f"udpout:127.0.0.1:{port}", sections=sections)
-    daemon, task = await start(config)
-    try:
-        assert await wait_for(lambda: daemon.vehicle.origin is not None, 10)
+    control = {"control": {"ground_stations": [250]}}
+    async with _behind_endpoint(tmp_path, control) as (_, daemon, gcs_port):
         answer = await send_goal(
             f"udpout:127.0.0.1:{gcs_port}", LocalGoal(12.0, -4.0, 3.0), None, 3.0
         )
@@ -590,9 +587,6 @@ async def test_the_ground_station_endpoint_takes_no_command_the_link_would_not(
         assert answer.text.startswith("avoidd (system 7) heard, but it did not answer")
         assert daemon.avoidance.goal is None
         assert daemon.vehicle.refused_commands["sender"] > 0
-    finally:
-        await stop(daemon, task)
-        await autopilot.stop()
 
 
 async def test_goto_tells_no_avoidd_heard_from_avoidd_silent() -> None:
