@@ -23,7 +23,7 @@ SWITCH_OFF_HOLD_NS = 1_000_000_000
 """Switched off in flight, avoidd holds this long (ArduPilot flies a velocity for 3 s)."""
 
 REASONS = {
-    "link": "link down",
+    "link": "no autopilot heard",
     "armed": "disarmed",
     "goal": "no goal",
     "mode": "mode does not take setpoints",
