@@ -11,7 +11,7 @@ import numpy.typing as npt
 
 from avoidd.config import HeadConfig, PerceptionConfig
 from avoidd.errors import BrokenFrame
-from avoidd.perception.blind_band import hidden_bins, without_band_columns
+from avoidd.perception.blind_band import hidden_bins, settle_hidden, without_band_columns
 from avoidd.perception.ground_match import Views
 from avoidd.perception.obstacles import Obstacle
 from avoidd.perception.perceive import Perception, perceive, rectified_to_level
@@ -372,8 +372,8 @@ class HeadPipeline:
         seen = see(depth, disparity)
         # The left border band cannot show a surface nearer than f*B/x at column x (its match
         # would be outside the right image). Where a bin's band pixels show that something
-        # nearer than its reading stands unseen, the bin reads as if the band were not there:
-        # from its other columns, or unknown.
+        # nearer than its reading stands unseen, the bin reads what its other columns show if
+        # that is no farther, else unknown (never clear).
         band_px = min(self._matcher.num_disparities, unresolved.shape[1])
         evidence = unresolved[:, :band_px].copy()
         if matched.unchecked is not None:
@@ -393,11 +393,7 @@ class HeadPipeline:
                 without_band_columns(disparity, band_px),
             )
             blind = see(*without_band).scan
-            seen.scan.distance_m[hidden] = blind.distance_m[hidden]
-            if seen.scan.points_frd_m is not None:
-                seen.scan.points_frd_m[hidden] = (
-                    blind.points_frd_m[hidden] if blind.points_frd_m is not None else np.nan
-                )
+            settle_hidden(seen.scan, blind, hidden)
         lap("obstacles")
         valid = float(np.count_nonzero(~np.isnan(disparity))) / disparity.size
         return HeadResult(

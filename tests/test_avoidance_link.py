@@ -589,12 +589,54 @@ async def test_the_ground_station_endpoint_takes_no_command_the_link_would_not(
         assert daemon.vehicle.refused_commands["sender"] > 0
 
 
+async def test_nothing_from_the_ground_station_endpoint_is_taken_for_the_autopilot(
+    tmp_path: Path,
+) -> None:
+    # A sender on the endpoint forges the autopilot's heartbeat, attitude and position (system
+    # 7, component 1) before the real autopilot ever spoke: avoidd adopts nothing, its link
+    # stays down and it holds no position. Forwarded to the autopilot's port, they are bytes.
+    port, gcs_port = free_udp_port(), free_udp_port()
+    sections = {
+        "avoidance": {"enabled": True},
+        "mavlink": {
+            "connection": f"udpout:127.0.0.1:{port}",
+            "gcs_connection": f"udpin:127.0.0.1:{gcs_port}",
+        },
+    }
+    config = synthetic_config(tmp_path, f"udpout:127.0.0.1:{port}", sections=sections)
+    daemon, task = await start(config)
+    forger = await open_udp_peer()
+    fake = mav.Codec(7, 1)
+    messages = [
+        fake.build("HEARTBEAT", mav.MAV_TYPE_QUADROTOR, mav.MAV_AUTOPILOT_ARDUPILOTMEGA, 209, 4, 4),
+        fake.build("ATTITUDE", 1000, 0.5, 0.0, 0.0, 0.0, 0.0, 0.0),
+        fake.build("LOCAL_POSITION_NED", 1000, 999.0, 0.0, -2.0, 0.0, 0.0, 0.0),
+    ]
+    try:
+        for _ in range(100):  # until 30 have been decoded, 10 s at most
+            for message in messages:
+                forger.transport.sendto(fake.pack(message), ("127.0.0.1", gcs_port))
+            await asyncio.sleep(0.1)
+            if daemon.gcs.counters().get("decoded", 0) >= 30:
+                break
+        assert daemon.gcs.counters().get("decoded", 0) >= 30, daemon.gcs.counters()
+        await asyncio.sleep(0.5)
+        assert not daemon.vehicle.link_up
+        assert daemon.vehicle.mode is None and daemon.vehicle.position is None
+    finally:
+        forger.close()
+        await stop(daemon, task)
+
+
 async def test_goto_tells_no_avoidd_heard_from_avoidd_silent() -> None:
     # Nothing answers on the port: "no avoidd heard", with what to check.
     port = free_udp_port()
     answer = await send_goal(f"udpout:127.0.0.1:{port}", LocalGoal(1.0, 0.0, 2.0), None, 1.0)
     assert answer.accepted is None and answer.system_id is None
     assert answer.text.startswith("no avoidd heard within 1 s: nothing from MAVLink component 196")
+    # With the vehicle's system given, silence is still "no avoidd heard".
+    given = await send_goal(f"udpout:127.0.0.1:{port}", LocalGoal(1.0, 0.0, 2.0), 7, 1.0)
+    assert given.text.startswith("no avoidd heard") and given.system_id is None
 
 
 async def test_goto_reaches_avoidd_through_a_router_like_a_ground_station(tmp_path: Path) -> None:

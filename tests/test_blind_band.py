@@ -16,11 +16,11 @@ import pytest
 
 from avoidd.config import PerceptionConfig
 from avoidd.evaluation.scenes import NEAR_RIG, SceneCase, noisy_frame, suite_head, truth_bins
-from avoidd.perception.blind_band import hidden_bins, patch_side_px
+from avoidd.perception.blind_band import hidden_bins, patch_side_px, settle_hidden
 from avoidd.perception.frames import Pose
 from avoidd.pipeline import HeadPipeline
 from avoidd.sources.scene import Box, Pole, Scene, render_pair
-from avoidd.types import SECTOR_COUNT
+from avoidd.types import SECTOR_COUNT, SectorScan
 from avoidd.vision.calibration import Calibration
 
 LEVEL = Pose(np.array([[0.0, 0.0, 1.0], [1.0, 0.0, 0.0], [0.0, 1.0, 0.0]]), np.zeros(3))
@@ -109,3 +109,26 @@ def test_hidden_bins_weighs_evidence_against_the_reading() -> None:
     ground = np.zeros_like(evidence)
     ground[300:400, 20:60] = True
     assert not hidden_bins(ground, NEAR_RIG, LEVEL, 0.05, 20, clear).any()
+
+
+def test_a_hidden_bin_never_reads_farther_or_clear() -> None:
+    # With the band: readings 3, 5, clear, 13.02 m; without it: 10, 4, clear, 13.0 m. Hidden
+    # bins take the no-farther reading without the band, else unknown; others stay.
+    def scan(values: list[float]) -> SectorScan:
+        distance = np.full(SECTOR_COUNT, np.nan, dtype=np.float32)
+        distance[:4] = values
+        points = np.zeros((SECTOR_COUNT, 3), dtype=np.float32)
+        points[:4, 0] = values
+        return SectorScan(0, distance, points)
+
+    with_band = scan([3.0, 5.0, math.inf, 13.02])
+    without = scan([10.0, 4.0, math.inf, 13.0])
+    hidden = np.zeros(SECTOR_COUNT, dtype=bool)
+    hidden[[0, 1, 2, 3]] = True
+    settle_hidden(with_band, without, hidden)
+    read = with_band.distance_m
+    assert math.isnan(read[0])  # 10 m would be farther than the 3 m seen with the band
+    assert read[1] == pytest.approx(4.0) and with_band.points_frd_m[1, 0] == pytest.approx(4.0)
+    assert math.isnan(read[2])  # never clear over a hidden surface
+    assert read[3] == pytest.approx(13.0)
+    assert np.isnan(with_band.points_frd_m[[0, 2]]).all()

@@ -70,3 +70,28 @@ def test_the_daemon_says_when_it_cuts_the_top_speed(caplog: pytest.LogCaptureFix
     with caplog.at_level(logging.WARNING, logger="avoidd.daemon.avoidance"):
         AvoidanceLoop(config, None, vehicle, None, lambda *a: None, 20.0, 30.0)  # type: ignore[arg-type]
     assert not [r for r in caplog.records if "cut to" in r.getMessage()]
+
+
+def test_the_cut_counts_the_delay_the_speed_law_counts() -> None:
+    # With no configured latency the speed law still counts one setpoint period (20 Hz) and
+    # the autopilot's 0.2 s response: so does the cut.
+    config = AvoidanceConfig(enabled=True, max_speed_m_s=10.0, latency_ms=0)
+    latency_s = 1.0 / 20.0 + 0.2
+    expected = -2.0 * latency_s + math.sqrt((2.0 * latency_s) ** 2 + 2.0 * 2.0 * (8.0 - 1.5))
+    assert within_sight(config, 8.0).max_speed_m_s == pytest.approx(expected)
+
+
+def test_no_size_promised_means_no_cut() -> None:
+    rig = rig_for("320x240", None)
+    assert thin_range_m(rig, 0.0, 24.0) == math.inf
+    config = AvoidanceConfig(enabled=True, max_speed_m_s=5.0)
+    assert within_sight(config, thin_range_m(rig, 0.0, 24.0)) is config
+
+
+def test_the_floor_is_said_as_a_floor(caplog: pytest.LogCaptureFixture) -> None:
+    vehicle = SimpleNamespace(mode=None, link_up=True, reboots=0, wants_origin=False)
+    config = AvoidanceConfig(enabled=True, max_speed_m_s=5.0)
+    with caplog.at_level(logging.WARNING, logger="avoidd.daemon.avoidance"):
+        AvoidanceLoop(config, None, vehicle, None, lambda *a: None, 20.0, 1.0)  # type: ignore[arg-type]
+    (record,) = [r for r in caplog.records if "cut to" in r.getMessage()]
+    assert "cut to its floor of 0.5 m/s" in record.getMessage()

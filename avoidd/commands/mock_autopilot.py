@@ -69,6 +69,8 @@ def run_mock(args: argparse.Namespace) -> int:
     origin = tuple(args.origin) if args.origin else (DEFAULT_ORIGIN if args.fly else None)
     if origin is not None and not valid_lat_lon(origin[0], origin[1]):
         raise ConfigError([f"--origin {origin[0]} {origin[1]}: not a latitude and longitude"])
+    if origin is not None and not -500.0 <= origin[2] <= 9000.0:
+        raise ConfigError([f"--origin altitude {origin[2]}: give -500 to 9000 metres AMSL"])
     settings: dict[str, Any] = {
         "flavour": args.flavour,
         "system_id": args.system_id,

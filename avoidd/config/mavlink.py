@@ -18,7 +18,8 @@ class ObstacleDistanceConfig(Strict):
     Attributes:
         rate_hz: Most messages per second. Each new scan is sent as soon as it is made (its
             capture time in ``time_usec``); without a new one the last message goes again
-            after 0.2 s (both autopilots drop the data 0.5 s after the last one).
+            after 0.2 s, or one period if that is longer (both autopilots drop the data
+            0.5 s after the last one: keep it at 5 Hz or more).
         min_distance_cm: The nearest range the message claims to measure. Leave it out: it then
             follows from the heads (the nearest range the least capable one measures, see
             ``avoidd check-config``); a value below that is refused, since it would claim

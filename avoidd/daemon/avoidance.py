@@ -45,8 +45,8 @@ from avoidd.mavlink.mission import MissionClient
 from avoidd.mavlink.modes import ARDUPILOT, PX4
 from avoidd.mavlink.vehicle import Vehicle
 from avoidd.planner.core import Decision, Goal, Pose
+from avoidd.planner.cycle import MIN_TOP_SPEED_M_S, AutopilotState, CycleInput, PlanningCycle
 from avoidd.planner.cycle import REASONS as _REASONS
-from avoidd.planner.cycle import AutopilotState, CycleInput, PlanningCycle
 from avoidd.planner.gating import Gate
 
 logger = logging.getLogger(__name__)
@@ -402,7 +402,18 @@ class AvoidanceLoop:
     def _report_speed_cut(self) -> None:
         """Say so when the cameras cannot stop for the configured top speed."""
         flown = self.planner.config.max_speed_m_s
-        if flown < self.config.max_speed_m_s and self.cycle.thin_range_m is not None:
+        thin_m = self.cycle.thin_range_m
+        if flown < self.config.max_speed_m_s and thin_m is not None and flown <= MIN_TOP_SPEED_M_S:
+            logger.warning(
+                "avoidance: top speed %.1f m/s cut to its floor of %.1f m/s: the cameras first "
+                "read their smallest obstacle at %.1f m, within the %.1f m clearance and a stop "
+                '(docs/perception.md, "Thin poles")',
+                self.config.max_speed_m_s,
+                flown,
+                thin_m,
+                self.planner.clearance_m,
+            )
+        elif flown < self.config.max_speed_m_s and thin_m is not None:
             logger.warning(
                 "avoidance: top speed %.1f m/s cut to %.1f m/s: the cameras first read their "
                 "smallest obstacle at %.1f m, and a stop from %.1f m/s must fit within that "

@@ -120,10 +120,12 @@ class Daemon:
         self.gcs: GcsEndpoint | None = None
         """The ground-station endpoint (``mavlink.gcs_connection``), if configured."""
         if mavlink.gcs_connection is not None:
-            # What ground stations send is taken as the autopilot's link takes it: the same
-            # trust rule decides what commands avoidd.
+            # Of what ground stations send, avoidd takes only what is addressed to it, under
+            # the autopilot link's trust rule; the rest goes on to the autopilot unread.
             self.gcs = GcsEndpoint(
-                parse_connection(mavlink.gcs_connection), self.link, self.vehicle.handle
+                parse_connection(mavlink.gcs_connection),
+                self.link,
+                self.vehicle.handle_ground_station,
             )
         self.codec.instance = instance_id()
         self.twins = TwinWatch(self.link, self.codec.instance, self.announce)

@@ -6,12 +6,15 @@ like one endpoint of a router between the autopilot and one ground station:
 - what a ground station sends there reaches the autopilot unchanged (raw bytes, signatures
   kept), and what is addressed to avoidd (goals, commands, parameters) is also decoded and
   taken exactly as on the autopilot's link: the same trust rule (the vehicle's own system and
-  ``mavlink.control.ground_stations``, signatures on a signed link), the same answers;
+  ``mavlink.control.ground_stations``, signatures on a signed link), the same answers. Nothing
+  else from there is read: the autopilot's state comes from its own link only;
 - everything avoidd sends (HEARTBEAT, STATUSTEXT, COMMAND_ACK, PARAM_VALUE, the obstacle
   messages) and everything the adopted autopilot sends goes to the ground station.
 
 A ``udpin`` endpoint answers the last sender it heard: one ground station at a time (``avoidd
-goto``, or QGroundControl/Mission Planner pointed at it). Nothing is sent before one spoke.
+goto``, or QGroundControl/Mission Planner pointed at it), and anyone who can reach the port can
+be that sender, so keep it on loopback or a trusted network. Nothing is sent before one spoke.
+At most :data:`MAX_DATAGRAMS_PER_S` are taken a second.
 """
 
 from __future__ import annotations
@@ -25,6 +28,12 @@ from avoidd.mavlink.link import Handler, MavLink
 from avoidd.mavlink.transport import Transport, create_transport
 
 logger = logging.getLogger(__name__)
+
+MAX_DATAGRAMS_PER_S = 500
+"""What the endpoint takes from ground stations per second; the rest is dropped unread, so a
+flood there can neither fill the autopilot's link (a serial line's buffer, which avoidd's own
+OBSTACLE_DISTANCE needs) nor take the event loop (a ground station sends tens a second, a
+parameter download a few hundred)."""
 
 
 class GcsEndpoint:
@@ -44,8 +53,11 @@ class GcsEndpoint:
         self._parser = link.codec.parser()
         self.transport: Transport = create_transport(spec, self._on_bytes)
         self.counts: Counter[str] = Counter()
-        """``to_autopilot``, ``to_gcs``, ``dropped`` datagrams and ``decoded`` messages."""
+        """``to_autopilot``, ``to_gcs``, ``dropped`` and ``over_budget`` datagrams, and the
+        ``decoded`` messages."""
         self._heard = False
+        self._window_s = 0.0
+        self._in_window = 0
         link.mirror(self._to_gcs)
 
     async def open(self) -> None:
@@ -63,6 +75,13 @@ class GcsEndpoint:
         await self.transport.close()
 
     def _on_bytes(self, data: bytes) -> None:
+        now_s = time.monotonic()
+        if now_s - self._window_s >= 1.0:
+            self._window_s, self._in_window = now_s, 0
+        self._in_window += 1
+        if self._in_window > MAX_DATAGRAMS_PER_S:
+            self.counts["over_budget"] += 1
+            return
         if not self._heard:
             self._heard = True
             logger.info("MAVLink ground-station endpoint %s: a ground station spoke", self.spec)

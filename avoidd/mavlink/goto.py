@@ -28,7 +28,7 @@ GCS_SYSTEM_ID = 255
 GCS_COMPONENT_ID = 190  # MAV_COMP_ID_MISSIONPLANNER
 _POSITION_ONLY = 0x0FF8
 _RESEND_S = 1.0
-_REASON_WAIT_S = 1.0
+_REASON_WAIT_S = 2.0
 """How long a refusal's COMMAND_ACK waits for the STATUSTEXT that says why."""
 _REFUSED = "avoidd: goal refused: "
 
@@ -152,6 +152,8 @@ async def send_goal(
     )
     target = system_id
     reason: str | None = None
+    heard_avoidd = False
+    first_goal_s: float | None = None
     deadline = time.monotonic() + timeout_s
     next_send = 0.0
     try:
@@ -160,6 +162,7 @@ async def send_goal(
                 transport.send(codec.pack(heartbeat))
                 if target is not None:
                     transport.send(codec.pack(_goal_message(codec, goal, target)))
+                    first_goal_s = now if first_goal_s is None else first_goal_s
                 next_send = now + _RESEND_S
             try:
                 message = await asyncio.wait_for(heard.get(), min(0.1, deadline - now))
@@ -168,14 +171,19 @@ async def send_goal(
             from_avoidd = message.get_srcComponent() == mav.MAV_COMP_ID_OBSTACLE_AVOIDANCE
             if not from_avoidd:
                 continue
+            heard_avoidd = True
             if target is None and message.get_type() == "HEARTBEAT":
                 target = message.get_srcSystem()
                 next_send = 0.0
                 continue
             if message.get_srcSystem() != target:
                 continue
-            if message.get_type() == "STATUSTEXT" and str(message.text).startswith(_REFUSED):
-                reason = str(message.text)[len(_REFUSED) :]
+            if (
+                first_goal_s is not None
+                and message.get_type() == "STATUSTEXT"
+                and str(message.text).startswith(_REFUSED)
+            ):
+                reason = str(message.text)[len(_REFUSED) :]  # said after our goal went out
             answer = _answer(message, goal)
             if answer is None:
                 continue
@@ -185,13 +193,13 @@ async def send_goal(
                     reason = await _reason(heard, target, deadline)
                 text = f"refused ({text}): {reason or 'no reason given'}"
             return Answer(accepted, text, target)
-        if target is None:
+        if not heard_avoidd:
             return Answer(
                 None,
                 f"no avoidd heard within {timeout_s:g} s: nothing from MAVLink component "
                 f"{mav.MAV_COMP_ID_OBSTACLE_AVOIDANCE} reached {connection} (is avoidd running, "
-                "and does this connection reach its link? a MAVLink router's ground-station "
-                "endpoint does; see docs/integration.md)",
+                "and does this connection reach it? avoidd's own mavlink.gcs_connection or a "
+                "MAVLink router's ground-station endpoint does; see docs/mavlink.md)",
                 None,
             )
         return Answer(

@@ -153,6 +153,15 @@ class MavLink:
         if forward in self._mirrors:
             self._mirrors.remove(forward)
 
+    def _mirror(self, data: bytes) -> None:
+        for forward in self._mirrors:
+            try:
+                forward(data)
+            except Exception:
+                # A mirror's failure must take neither the sender nor the receiver down.
+                self.handler_errors += 1
+                logger.exception("MAVLink %s: a mirror failed", self.spec)
+
     def send_raw(self, data: bytes) -> bool:
         """Send bytes another endpoint received on to the autopilot, unchanged.
 
@@ -200,8 +209,7 @@ class MavLink:
                     self.sent[kind] += 1
                 else:
                     self.dropped[kind] += 1
-                for forward in self._mirrors:
-                    forward(packed)
+                self._mirror(packed)
 
     def _on_bytes(self, data: bytes, sender: Sender = None) -> None:
         received_ns = time.monotonic_ns()
@@ -225,8 +233,7 @@ class MavLink:
         if not self._locked and not self.budget.allows(sender, received_ns):
             return  # a flood from a sender not adopted: dropped unread (counted)
         if self._locked and sender == self.autopilot_sender:
-            for forward in self._mirrors:
-                forward(data)  # the autopilot's own bytes, to a ground-station endpoint
+            self._mirror(data)  # the autopilot's own bytes, to a ground-station endpoint
         self.bytes_received += len(data)
         parser = self._parser(sender)
         errors, rejects = parser.parse_errors, parser.signature_rejects

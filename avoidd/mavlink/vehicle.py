@@ -196,12 +196,7 @@ class Vehicle:
             self.ground_stations.add(source)
         if kind in ADDRESSED_TO_US and self._addressed_to_us(message):
             # Goals, commands and parameters for avoidd itself: see avoidd.mavlink.trust.
-            refusal = self.trust.refusal(message, self.system_id)
-            if refusal is not None:
-                self.ignored[source] += 1
-                self.refused_commands[refusal] += 1
-            elif self.on_command is not None:
-                self.on_command(message)
+            self._command_for_us(message)
             return
         if source != self.system_id and not (
             kind == "HEARTBEAT" and self._other_autopilot(message, source)
@@ -219,6 +214,34 @@ class Vehicle:
             handler(message, received_ns)
         if self.on_autopilot is not None:
             self.on_autopilot(message, received_ns)
+
+    def handle_ground_station(self, message: mav.Message, received_ns: int) -> None:
+        """Take one message that came in on the ground-station endpoint (:mod:`.gcs`).
+
+        Only what is addressed to avoidd (goals, commands, parameters) is taken, under the
+        same trust rule as on the autopilot's link, and a ground station's HEARTBEAT is noted.
+        Nothing from there is ever the autopilot: its heartbeats, attitude, positions and
+        mission answers come from the autopilot's link only (a sender there could otherwise
+        be adopted as the autopilot or feed a false attitude).
+        """
+        del received_ns  # the same signature as the link's handlers
+        kind = message.get_type()
+        if kind == "HEARTBEAT" and message.type == mav.MAV_TYPE_GCS:
+            self.ground_stations.add(message.get_srcSystem())
+            return
+        if self.system_id is None or kind not in ADDRESSED_TO_US:
+            return
+        if self._addressed_to_us(message):
+            self._command_for_us(message)
+
+    def _command_for_us(self, message: mav.Message) -> None:
+        """A goal, command or parameter for avoidd: taken or refused (:mod:`.trust`)."""
+        refusal = self.trust.refusal(message, self.system_id)
+        if refusal is not None:
+            self.ignored[message.get_srcSystem()] += 1
+            self.refused_commands[refusal] += 1
+        elif self.on_command is not None:
+            self.on_command(message)
 
     @property
     def trust(self) -> Trust:

@@ -7,8 +7,9 @@ the baseline, such a surface shows in the columns right of ``f B / Z``; narrower
 cable), it can vanish from the band. The band's confirmed readings stand: what the right view
 confirms is there. But a bin whose band pixels are left unmeasured where its reading's surface
 would have been measured, in a patch as large as the smallest obstacle would look there, holds
-something nearer that no match could see (:func:`hidden_bins`); that bin reads as if the band
-were not there (from its other columns, or unknown), as it did before the band was used.
+something nearer that no match could see (:func:`hidden_bins`); that bin reads what its other
+columns show when that is no farther (what it read before the band was used), else unknown,
+never clear (:func:`settle_hidden`).
 """
 
 from __future__ import annotations
@@ -20,7 +21,7 @@ import numpy as np
 
 from avoidd.perception.frames import Pose, axis_per_depth
 from avoidd.perception.sectors import bin_of_bearing
-from avoidd.types import SECTOR_COUNT, BoolArray, FloatArray, RectifiedRig
+from avoidd.types import SECTOR_COUNT, BoolArray, FloatArray, RectifiedRig, SectorScan
 
 EDGE_MARGIN_PX = 6
 """How far inside the right image a match must land to be measurable: the band check's
@@ -115,3 +116,29 @@ def without_band_columns(image: FloatArray, band_px: int) -> FloatArray:
     blanked = image.copy()
     blanked[:, :band_px] = np.nan
     return blanked
+
+
+def settle_hidden(scan: SectorScan, without_band: SectorScan, hidden: BoolArray) -> None:
+    """What the hidden bins of ``scan`` read, in place: never farther, never clear.
+
+    A hidden bin (:func:`hidden_bins`) holds something nearer than its reading. It takes the
+    reading of the scan made without the band when that is finite and no farther (the
+    surface its other columns show: what it read before the band was used), else unknown.
+
+    Args:
+        scan: The scan made with the band's readings.
+        without_band: The same frame's scan made without them.
+        hidden: (72,) the bins :func:`hidden_bins` found.
+    """
+    here, there = scan.distance_m, without_band.distance_m
+    with np.errstate(invalid="ignore"):
+        keep = hidden & np.isfinite(there) & (there <= here)
+    gone = hidden & ~keep
+    here[keep] = there[keep]
+    here[gone] = np.nan
+    if scan.points_frd_m is not None:
+        if without_band.points_frd_m is not None:
+            scan.points_frd_m[keep] = without_band.points_frd_m[keep]
+        else:
+            scan.points_frd_m[keep] = np.nan
+        scan.points_frd_m[gone] = np.nan

@@ -15,7 +15,7 @@ from dataclasses import dataclass
 from avoidd.config import AvoidanceConfig
 from avoidd.planner.core import Decision, Goal, Planner, Pose
 from avoidd.planner.gating import Facts, Gate, Handover, gate
-from avoidd.planner.speed import perception_speed_m_s
+from avoidd.planner.speed import effective_latency_s, perception_speed_m_s
 from avoidd.planner.track import track_velocity_ne
 from avoidd.types import LocalPosition, SectorScan, TrackPoint
 
@@ -124,15 +124,16 @@ def within_sight(config: AvoidanceConfig, thin_range_m: float | None) -> Avoidan
 
     Returns:
         ``config``, or a copy whose ``max_speed_m_s`` is
-        :func:`~avoidd.planner.speed.perception_speed_m_s` when that is lower.
+        :func:`~avoidd.planner.speed.perception_speed_m_s` when that is lower (after the
+        delay :func:`~avoidd.planner.speed.effective_latency_s` counts at the least).
     """
     if thin_range_m is None:
         return config
+    # The delay the speed law counts at the least: the configured latency, or one setpoint
+    # period plus the autopilot's response if that is longer.
+    latency_s = effective_latency_s(config.latency_ms / 1000.0, 0.0, config.setpoint_rate_hz)
     limit = perception_speed_m_s(
-        thin_range_m,
-        config.vehicle_radius_m + config.margin_m,
-        config.max_accel_m_s2,
-        config.latency_ms / 1000.0,
+        thin_range_m, config.vehicle_radius_m + config.margin_m, config.max_accel_m_s2, latency_s
     )
     if limit >= config.max_speed_m_s:
         return config

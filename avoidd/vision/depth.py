@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+import math
+
 import numpy as np
 import numpy.typing as npt
 
@@ -37,8 +39,10 @@ def thin_range_m(rig: RectifiedRig, width_m: float, resolved_m: float) -> float:
         resolved_m: The head's resolved range (:func:`resolved_range_m`), a ceiling.
 
     Returns:
-        Metres.
+        Metres; ``inf`` when ``width_m`` is 0 (no size promised: nothing to stop for).
     """
+    if width_m <= 0.0:
+        return math.inf
     return min(rig.fx * width_m / THIN_MIN_PX, resolved_m)
 
 
