@@ -16,6 +16,11 @@ import time
 from avoidd.daemon.outputs import when_ready
 
 
+def _fresh(sent: list[float]) -> bool:
+    sent.append(time.monotonic())
+    return True
+
+
 async def _run_for(coroutine: object, seconds: float) -> None:
     task = asyncio.ensure_future(coroutine)  # type: ignore[call-overload]
     await asyncio.sleep(seconds)
@@ -27,9 +32,7 @@ async def _run_for(coroutine: object, seconds: float) -> None:
 async def test_a_new_scan_is_sent_at_once_not_at_the_next_repeat() -> None:
     ready = asyncio.Event()
     sent: list[float] = []
-    task = asyncio.ensure_future(
-        when_ready(ready, 15.0, lambda: sent.append(time.monotonic()), 30.0)
-    )
+    task = asyncio.ensure_future(when_ready(ready, 15.0, lambda: _fresh(sent), 30.0))
     await asyncio.sleep(0.3)
     assert len(sent) == 1  # the first call goes at once; the next repeat is 30 s away
     ready.set()
@@ -54,7 +57,7 @@ async def test_scans_faster_than_the_rate_are_sent_at_the_rate_at_most() -> None
             await asyncio.sleep(0.001)
 
     flooding = asyncio.ensure_future(flood())
-    await _run_for(when_ready(ready, 10.0, lambda: sent.append(time.monotonic())), 1.0)
+    await _run_for(when_ready(ready, 10.0, lambda: _fresh(sent)), 1.0)
     flooding.cancel()
     gaps = [b - a for a, b in itertools.pairwise(sent)]
     assert len(sent) <= 11
@@ -64,7 +67,23 @@ async def test_scans_faster_than_the_rate_are_sent_at_the_rate_at_most() -> None
 async def test_without_new_scans_the_message_is_repeated() -> None:
     ready = asyncio.Event()
     sent: list[float] = []
-    await _run_for(when_ready(ready, 50.0, lambda: sent.append(time.monotonic()), 0.05), 1.0)
+    await _run_for(when_ready(ready, 50.0, lambda: _fresh(sent), 0.05), 1.0)
     assert len(sent) >= 4  # 20 expected idle; a loaded machine may stall a few
     gaps = [b - a for a, b in itertools.pairwise(sent)]
     assert min(gaps) >= 0.05 - 0.005  # not more often than asked either
+
+
+async def test_without_fresh_data_the_message_goes_at_the_full_rate() -> None:
+    # PX4's all-unknown message (no fresh scan) must keep coming at rate_hz, not at the
+    # repeat interval of fresh data.
+    ready = asyncio.Event()
+    sent: list[float] = []
+
+    def unknown() -> bool:
+        sent.append(time.monotonic())
+        return False
+
+    await _run_for(when_ready(ready, 20.0, unknown, 10.0), 1.0)
+    assert len(sent) >= 8  # 20 expected idle; a loaded machine may stall some
+    gaps = [b - a for a, b in itertools.pairwise(sent)]
+    assert min(gaps) >= 0.05 - 0.005

@@ -62,24 +62,26 @@ data 0.5 s after the last message)."""
 
 
 async def when_ready(
-    ready: asyncio.Event, rate_hz: float, send: Callable[[], None], repeat_s: float = REPEAT_S
+    ready: asyncio.Event, rate_hz: float, send: Callable[[], bool], repeat_s: float = REPEAT_S
 ) -> None:
     """Call ``send`` as soon as ``ready`` is set, at most ``rate_hz`` times a second, forever.
 
     Without ``ready`` being set, ``send`` is called again ``repeat_s`` (at least one period)
-    after the last call.
+    after a call that sent fresh data, and one period after one that did not (no data: the
+    "I don't know" an autopilot must keep hearing goes out at the full rate, as before).
 
     Args:
         ready: Set when there is something new to send; cleared here before each call.
         rate_hz: Most calls per second.
-        send: What to call; it must not block.
-        repeat_s: Longest time between calls.
+        send: What to call; it must not block; True when it sent fresh data.
+        repeat_s: Longest time between calls after fresh data.
     """
     period_s = 1.0 / rate_hz
     repeat_s = max(repeat_s, period_s)
     last_s = -math.inf
+    wait_for_s = period_s
     while True:
-        wait_s = last_s + repeat_s - time.monotonic()
+        wait_s = last_s + wait_for_s - time.monotonic()
         if wait_s > 0.0 and not ready.is_set():
             with contextlib.suppress(TimeoutError):
                 await asyncio.wait_for(ready.wait(), wait_s)
@@ -87,7 +89,7 @@ async def when_ready(
         if early_s > 0.0:
             await asyncio.sleep(early_s)  # the rate limit
         ready.clear()
-        send()
+        wait_for_s = repeat_s if send() else period_s
         last_s = time.monotonic()
 
 
@@ -135,6 +137,8 @@ class Outputs:
         self.last_sent: tuple[int, Message] | None = None
         """The last OBSTACLE_DISTANCE sent and when (monotonic ns), for the debug view."""
         self._last_usec = 0
+        self.last_was_fresh = False
+        """Whether the last OBSTACLE_DISTANCE built carried a fresh scan (not "no data")."""
         self._last_autopilot: str | None = None
         self._blind_log = RepeatLimiter(logger)
         self._nothing_known_since_ns: int | None = None
@@ -203,6 +207,7 @@ class Outputs:
         elif scan is not None:
             self._nothing_known_since_ns = None
             self._blind_log.clear("bins measured again; OBSTACLE_DISTANCE sent again")
+        self.last_was_fresh = scan is not None
         if scan is None:
             if autopilot != PX4:
                 self.withheld += 1
@@ -228,15 +233,17 @@ class Outputs:
 
         At most ``rate_hz`` a second; without a new scan the message goes again after
         :data:`REPEAT_S`, so a scan never waits for a send tick and the autopilot never goes
-        without a message for its 0.5 s timeout.
+        without a message for its 0.5 s timeout. Without fresh data (PX4's all-unknown
+        message) it goes at the full ``rate_hz``, as before.
         """
 
-        def send() -> None:
+        def send() -> bool:
             now_ns = time.monotonic_ns()
             message = self.obstacle_distance_message(now_ns)
             if message is not None:
                 self.link.send(message)
                 self.last_sent = (now_ns, message)
+            return message is not None and self.last_was_fresh
 
         await when_ready(self._scan_ready, self.config.obstacle_distance.rate_hz, send)
 
