@@ -91,6 +91,27 @@ def test_the_follower_lines_up_first_then_goes_through_and_gives_up_if_it_cannot
     assert stuck.subgoal(_around(wall, late), (28.0, 0.0), True, 4.4) is None
 
 
+def test_a_gap_in_a_row_already_passed_is_not_flown_back_to() -> None:
+    # Two short barriers on a slant behind and to the right of the vehicle, 3.7 m apart: the
+    # goal lies beyond their line, but the line to the goal crosses it metres past the end of
+    # the nearer one, where nothing stands (in a box field this turned the vehicle back).
+    line = np.array([-0.79, 0.62]) / math.hypot(0.79, 0.62)
+    near_edge, far_edge = np.array([-1.4, 2.7]), np.array([-1.4, 2.7]) + 3.7 * line
+    steps = np.arange(0.0, 2.0, 0.1)[:, None]
+    points = np.vstack([near_edge - steps * line, far_edge + steps * line])
+    pose = Pose(S, 0.0, 0.0, -2.0, 0.0)
+    around = _around(points.tolist(), pose)
+    (gap,) = find_gaps(around, 20.0)
+    assert gap.distance_m > 0.0  # ahead of the vehicle along its axis: the old rule took it
+    assert GapFollower(9.0).subgoal(around, (7.3, 2.2), True, 4.4) is None
+    # The same barrier with the line to the goal through the gap, or across the barrier
+    # itself: followed.
+    through = gap.middle + 8.0 * gap.axis
+    assert GapFollower(9.0).subgoal(around, (float(through[0]), float(through[1])), True, 4.4)
+    across = near_edge - 1.5 * line + 8.0 * gap.axis
+    assert GapFollower(9.0).subgoal(around, (float(across[0]), float(across[1])), True, 4.4)
+
+
 def test_a_reading_is_placed_at_its_measured_points_bearing() -> None:
     distance = np.full(SECTOR_COUNT, np.inf)
     distance[6] = 10.0  # bin 6: 27.5-32.5 degrees

@@ -112,9 +112,8 @@ def find_gaps(
     A gap is two neighbouring points by bearing at least twice the clearance apart
     (:func:`~avoidd.planner.geometry.gap_edges`) whose line the remembered points continue
     (a wall with an opening, or beside a wall's end; not the space between two poles), and,
-    with ``seen``,
-    through which the cameras looked (not a stretch of wall between two views' edges).
-    Only gaps narrower than ``narrower_m`` are checked and returned.
+    with ``seen``, through which the cameras looked (not a stretch of wall between two
+    views' edges). Only gaps narrower than ``narrower_m`` are checked and returned.
     """
     first, second = gap_edges(around.offsets, around.clearance_m, within_m)
     gaps = []
@@ -156,6 +155,42 @@ def _in_a_barrier(gap: Gap, offsets: Array) -> bool:
     beyond = np.abs(along) - gap.half_width_m
     continued = on_line & (beyond >= near) & (beyond <= far)
     return bool(np.any(continued))
+
+
+def _crossing_along_m(gap: Gap, goal: Array) -> float | None:
+    """Where the line to the goal crosses the gap's line, along it from the gap's middle.
+
+    None when the goal is not beyond the gap's line.
+    """
+    goal_across = float(gap.axis @ goal)
+    if goal_across <= max(gap.distance_m, 0.0):
+        return None
+    crossing = goal * (max(gap.distance_m, 0.0) / goal_across)
+    along_line = np.array([-gap.axis[1], gap.axis[0]])
+    return float(along_line @ (crossing - gap.middle))
+
+
+def _on_the_way(gap: Gap, goal: Array, offsets: Array) -> bool:
+    """Whether the line to the goal crosses the gap's barrier: through the gap, or the barrier.
+
+    The goal lies beyond the gap's line, but a line through two obstacles reaches far past
+    them: two boxes the vehicle has already passed, on a slant, leave a "gap" whose line the
+    way to the goal crosses metres beyond the second box, where nothing stands. Lining up on
+    that gap turns the vehicle back. The barrier must stand where the line to the goal
+    crosses it (remembered points there, within ``_BARRIER_REACH_M[0]``), or the line must
+    run through the gap itself.
+    """
+    crossing_along = _crossing_along_m(gap, goal)
+    if crossing_along is None:
+        return False
+    along_line = np.array([-gap.axis[1], gap.axis[0]])
+    reach_m = _BARRIER_REACH_M[0]
+    if abs(crossing_along) <= gap.half_width_m + reach_m:
+        return True
+    relative = offsets - gap.middle
+    on_line = np.abs(relative @ gap.axis) <= _BARRIER_BAND_M
+    near_crossing = np.abs(relative @ along_line - crossing_along) <= reach_m
+    return bool(np.any(on_line & near_crossing))
 
 
 class GapFollower:
@@ -242,6 +277,8 @@ class GapFollower:
                 continue
             if gap.distance_m <= -around.clearance_m or float(gap.axis @ goal) <= gap.distance_m:
                 continue  # behind the vehicle, or the goal is not beyond it
+            if not _on_the_way(gap, goal, around.offsets):
+                continue  # its barrier is not what stands between the vehicle and the goal
             route = float(np.hypot(*gap.middle) + np.hypot(*(goal - gap.middle)))
             if route > float(np.hypot(*goal)) + _DETOUR_M:
                 continue
