@@ -76,5 +76,6 @@ async def send_statustext(
                 await asyncio.sleep(min(wait_s, _IDLE_POLL_S))
                 before_each()
         announcer.wakeup.clear()
-        with contextlib.suppress(TimeoutError):
-            await asyncio.wait_for(announcer.wakeup.wait(), timeout=_IDLE_POLL_S)
+        with contextlib.suppress(TimeoutError):  # asyncio.timeout: see outputs.when_ready
+            async with asyncio.timeout(_IDLE_POLL_S):
+                await announcer.wakeup.wait()

@@ -83,8 +83,12 @@ async def when_ready(
     while True:
         wait_s = last_s + wait_for_s - time.monotonic()
         if wait_s > 0.0 and not ready.is_set():
+            # asyncio.timeout, not wait_for: on Python 3.11 wait_for can swallow a
+            # cancellation that lands as the event is set, and this loop would never end
+            # (a daemon stop hung for 30 s once in CI).
             with contextlib.suppress(TimeoutError):
-                await asyncio.wait_for(ready.wait(), wait_s)
+                async with asyncio.timeout(wait_s):
+                    await ready.wait()
         early_s = last_s + period_s - time.monotonic()
         if early_s > 0.0:
             await asyncio.sleep(early_s)  # the rate limit
