@@ -93,9 +93,9 @@ async def test_a_stop_that_lands_as_a_scan_is_ready_ends_the_loop() -> None:
     # The daemon stops by cancelling its loops. On Python 3.11 asyncio.wait_for swallows a
     # cancellation that lands in the same turn as the event it waits on is set, and the loop
     # went on for ever (a daemon stop hung for 30 s once in CI).
+    sent: list[float] = []
     for _ in range(3):
         ready = asyncio.Event()
-        sent: list[float] = []
         task = asyncio.ensure_future(when_ready(ready, 15.0, lambda: _fresh(sent), 30.0))
         await asyncio.sleep(0.2)  # waiting for the next scan
         ready.set()
