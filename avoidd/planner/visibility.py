@@ -17,6 +17,8 @@ no way at all until it had turned to look beside itself.
 
 from __future__ import annotations
 
+import math
+
 import numpy as np
 import numpy.typing as npt
 
@@ -46,10 +48,17 @@ class VisibilityGrid:
         self.seen_ns = np.full((self.cells, self.cells), _NEVER, dtype=np.int64)
         self.centre = np.zeros(2)
         self._half = half_size_m
+        self._version = 0
+        self._seen_key: tuple[int, int] | None = None
+        self._seen = np.zeros(0, dtype=np.bool_)
+        self._corridors: dict[
+            tuple[float, float, float | None], tuple[Array, Array, npt.NDArray[np.bool_]]
+        ] = {}
 
     def clear(self) -> None:
         """Forget everything."""
         self.seen_ns[:] = _NEVER
+        self._version += 1
 
     def _follow(self, north_east: Array) -> None:
         """Shift the grid so that a position stays well inside it."""
@@ -68,6 +77,7 @@ class VisibilityGrid:
             moved[dst_n, dst_e] = self.seen_ns[src_n, src_e]
         self.seen_ns = moved
         self.centre = self.centre + shift * self.cell_m
+        self._version += 1
 
     def _index(
         self, points: Array
@@ -109,6 +119,35 @@ class VisibilityGrid:
         rows, columns, inside = self._index(points[keep])
         rows, columns = rows[inside], columns[inside]
         self.seen_ns[rows, columns] = np.maximum(self.seen_ns[rows, columns], t_ns)
+        self._version += 1
+
+    def _corridor(
+        self, clearance_m: float, look_m: float, near_half_m: float | None
+    ) -> tuple[Array, Array, npt.NDArray[np.bool_]]:
+        """The corridor's sample offsets: along (S,), lateral (S, L), outside the own disc."""
+        key = (clearance_m, look_m, near_half_m)
+        cached = self._corridors.get(key)
+        if cached is not None:
+            return cached
+        along = np.arange(0.0, look_m + clearance_m, self.cell_m)
+        half = np.full(along.shape, clearance_m)
+        if near_half_m is not None:
+            half = np.minimum(half, np.maximum(near_half_m, NEAR_TAPER * along))
+        lateral = half[:, None] * np.linspace(-1.0, 1.0, 5)[None, :]  # (S, L)
+        # The vehicle's own disc (within the clearance of where it stands) is where it is.
+        beyond = (along[:, None] ** 2 + lateral**2) > clearance_m**2
+        if len(self._corridors) > 16:
+            self._corridors.clear()
+        self._corridors[key] = (along, lateral, beyond)
+        return along, lateral, beyond
+
+    def _seen_since(self, since_ns: int) -> npt.NDArray[np.bool_]:
+        """Which cells were looked at since ``since_ns``, flattened (kept until a change)."""
+        key = (since_ns, self._version)
+        if self._seen_key != key:
+            self._seen = (self.seen_ns >= since_ns).ravel()
+            self._seen_key = key
+        return self._seen
 
     def _unseen(
         self,
@@ -119,27 +158,30 @@ class VisibilityGrid:
         since_ns: int,
         near_half_m: float | None = None,
     ) -> tuple[Array, Array, npt.NDArray[np.bool_]]:
-        """The swept corridors' sample points, (K, S, L, 2), and which of them are unseen."""
+        """The swept corridors' sample offsets and which samples are unseen, (K, S, L).
+
+        Returns:
+            ``(along, lateral, unseen)``: (S,) and (S, L) offsets along and across the
+            heading, and (K, S, L) whether each sample lies on a cell not seen since
+            ``since_ns`` (or off the grid) outside the vehicle's own disc.
+        """
         origin = np.asarray(north_east_m, dtype=np.float64)
         self._follow(origin)
-        along = np.arange(0.0, look_m + clearance_m, self.cell_m)
-        half = np.full(along.shape, clearance_m)
-        if near_half_m is not None:
-            half = np.minimum(half, np.maximum(near_half_m, NEAR_TAPER * along))
-        lateral = half[:, None] * np.linspace(-1.0, 1.0, 5)[None, :]  # (S, L)
-        unit = np.stack([np.cos(headings_rad), np.sin(headings_rad)], axis=1)  # (K, 2)
-        normal = np.stack([-unit[:, 1], unit[:, 0]], axis=1)
-        points = (
-            origin
-            + along[None, :, None, None] * unit[:, None, None, :]
-            + lateral[None, :, :, None] * normal[:, None, None, :]
-        )  # (K, S, L, 2)
-        rows, columns, inside = self._index(points)
-        unseen = (self.seen_ns[rows, columns] < since_ns) | ~inside
-        # The vehicle's own disc (within the clearance of where it stands) is where it is.
-        own = (along[:, None] ** 2 + lateral**2) <= clearance_m**2
-        unseen &= ~own[None, :, :]
-        return along, points, unseen
+        along, lateral, beyond = self._corridor(clearance_m, look_m, near_half_m)
+        # In cells from the grid's corner: origin + along * unit + lateral * normal, where
+        # the normal of (cos h, sin h) is (-sin h, cos h).
+        base = (origin - self.centre) / self.cell_m + self.cells / 2
+        cos_h = np.cos(headings_rad)[:, None, None] / self.cell_m
+        sin_h = np.sin(headings_rad)[:, None, None] / self.cell_m
+        ahead, across = along[None, :, None], lateral[None, :, :]
+        rows = np.floor(base[0] + ahead * cos_h - across * sin_h).astype(np.int64)
+        columns = np.floor(base[1] + ahead * sin_h + across * cos_h).astype(np.int64)
+        size = self.cells
+        inside = (rows >= 0) & (rows < size) & (columns >= 0) & (columns < size)
+        flat = np.clip(rows, 0, size - 1) * size + np.clip(columns, 0, size - 1)
+        unseen = ~(self._seen_since(since_ns)[flat] & inside)
+        unseen &= beyond[None, :, :]
+        return along, lateral, unseen
 
     def seen_at(self, points_ne: Array, since_ns: int) -> npt.NDArray[np.bool_]:
         """Whether each point (N, 2: north, east) was looked at since ``since_ns``."""
@@ -196,12 +238,17 @@ class VisibilityGrid:
             The north and east of the middle of the nearest unseen samples, or None when the
             corridor was all seen.
         """
-        _, points, unseen = self._unseen(
+        along, lateral, unseen = self._unseen(
             north_east_m, np.array([heading_rad]), clearance_m, look_m, since_ns, near_half_m
         )
         row = unseen[0].any(axis=1)
         if not row.any():
             return None
         step = int(np.argmax(row))
-        middle = points[0, step][unseen[0, step]].mean(axis=0)
-        return float(middle[0]), float(middle[1])
+        across = float(lateral[step][unseen[0, step]].mean())
+        cos_h, sin_h = math.cos(heading_rad), math.sin(heading_rad)
+        ahead = float(along[step])
+        return (
+            north_east_m[0] + ahead * cos_h - across * sin_h,
+            north_east_m[1] + ahead * sin_h + across * cos_h,
+        )
