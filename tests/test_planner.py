@@ -8,7 +8,8 @@ import math
 import numpy as np
 import pytest
 
-from avoidd.config import AvoidanceConfig
+from avoidd.config import AvoidanceConfig, TemporalConfig
+from avoidd.perception.temporal import SectorFilter
 from avoidd.planner.core import (
     Goal,
     Planner,
@@ -21,7 +22,7 @@ from avoidd.planner.gating import Facts, Gate, Handover, gate
 from avoidd.planner.geometry import directions_rad, free_distance
 from avoidd.planner.memory import ObstacleMemory, bearing_bins
 from avoidd.planner.visibility import VisibilityGrid
-from avoidd.types import SECTOR_COUNT
+from avoidd.types import SECTOR_COUNT, SectorScan
 
 S = 1_000_000_000
 
@@ -179,6 +180,36 @@ def test_the_end_of_a_wall_beside_a_gap_stays_when_the_gap_is_looked_through() -
 def test_bearing_bins_follow_the_yaw() -> None:
     bins = bearing_bins(np.array([math.pi / 2, math.pi]), math.pi / 2)
     assert bins.tolist() == [0, 18]
+
+
+def test_a_held_reading_is_not_placed_again_at_the_turned_pose() -> None:
+    # A wall's edge 5 m away at 10 degrees; the vehicle turns 6 degrees right between two
+    # frames, so the edge moves from bin 2 to bin 1 and bin 2 reads clear. The sector filter
+    # holds bin 2's reading for a moment: placed again at the new yaw it would stand 0.5 m
+    # into the gap beside the edge (16 degrees).
+    sectors = SectorFilter(TemporalConfig(confirm_frames=1, window_frames=1, hold_ms=200))
+    t2 = S + 70_000_000
+    first = sectors.update(SectorScan(S, _scan({2: 5.0}, range(-7, 8))))
+    second = sectors.update(SectorScan(t2, _scan({1: 5.0}, range(-7, 8))))
+    assert second.distance_m[2] == pytest.approx(5.0)  # held
+    turned = _pose(1.07, yaw=math.radians(6.0))
+
+    def nearest_m(planner: Planner, bearing_deg: float) -> float:
+        where = 5.0 * np.array(
+            [math.cos(math.radians(bearing_deg)), math.sin(math.radians(bearing_deg))]
+        )
+        return float(np.min(np.hypot(*(planner.memory.north_east - where).T)))
+
+    planner = _planner()
+    planner.observe_scan(first.distance_m, S, _pose(1.0), None, first.reading_t_ns)
+    planner.observe_scan(second.distance_m, t2, turned, None, second.reading_t_ns)
+    assert nearest_m(planner, 10.0) < 0.1
+    assert nearest_m(planner, 16.0) > 0.4
+    # Without the reading times the held reading is placed again where the turn carried it.
+    unaware = _planner()
+    unaware.observe_scan(first.distance_m, S, _pose(1.0))
+    unaware.observe_scan(second.distance_m, t2, turned)
+    assert nearest_m(unaware, 16.0) < 0.1
 
 
 # --- visibility --------------------------------------------------------------------------

@@ -189,7 +189,11 @@ class PlanningCycle:
                 scan.t_capture_ns, cycle.position, cycle.yaw_at_capture_rad, cycle.track
             )
             self.planner.observe_scan(
-                scan.distance_m, scan.t_capture_ns, at_capture, scan.points_frd_m
+                scan.distance_m,
+                scan.t_capture_ns,
+                at_capture,
+                scan.points_frd_m,
+                scan.reading_t_ns,
             )
         facts = self.facts(
             cycle.autopilot, cycle.goal is not None, scan is not None and pose is not None
