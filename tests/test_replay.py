@@ -110,3 +110,35 @@ def test_replay_of_a_head_that_does_not_exist(
     code = main(["replay", "--config", str(config), "--head", "rear", "--out", str(tmp_path / "x")])
     assert code == 2
     assert "--head rear: no such head; the config has front" in capsys.readouterr().err
+
+
+def test_replay_plot_draws_the_nearest_reading_beside_the_truth(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    from avoidd.replay_plot import read_records, series_of
+
+    config = synthetic_config(tmp_path, "udpout:127.0.0.1:14550", source=SOURCE)
+    out, plot = tmp_path / "replay.jsonl", tmp_path / "plots" / "nearest.png"
+    argv = ["replay", "--config", str(config), "--max-frames", "4", "--out", str(out)]
+    assert main([*argv, "--plot", str(plot)]) == 0
+    assert f"wrote {plot}" in capsys.readouterr().out
+    assert plot.read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
+    series = series_of(read_records(out))
+    assert series.t_s == pytest.approx([0.0, 0.1, 0.2, 0.3])
+    assert series.has_truth
+    for read, truth in zip(series.nearest_m, series.truth_m, strict=True):
+        assert read is not None and truth is not None
+        assert read == pytest.approx(truth, rel=0.03)
+
+
+def test_a_replay_series_without_truth_or_reading_keeps_the_gaps() -> None:
+    from avoidd.replay_plot import series_of
+
+    records = [
+        {"t_capture_ns": 5_000_000_000, "nearest": {"distance_m": 4.0}, "truth": None},
+        {"t_capture_ns": 5_500_000_000, "nearest": None},
+    ]
+    series = series_of(records)
+    assert series.t_s == [0.0, 0.5]
+    assert series.nearest_m == [4.0, None]
+    assert series.truth_m == [None, None] and not series.has_truth

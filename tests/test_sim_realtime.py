@@ -3,11 +3,13 @@ real time (``avoidd sim run --realtime``)."""
 
 from __future__ import annotations
 
+import json
 from pathlib import Path
 
 import numpy as np
 import pytest
 
+from avoidd.cli import main
 from avoidd.config.sim import load_scenario
 from avoidd.mavlink import codec as mav
 from avoidd.sim.flight import SimAutopilot
@@ -154,3 +156,26 @@ def test_reported_position_and_attitude_carry_the_asked_noise() -> None:
     exact.vehicle.state.position_m = np.array([4.0, -2.0, -3.0])
     message = exact.stream_message(position_id)
     assert message is not None and (message.x, message.y, message.z) == (4.0, -2.0, -3.0)
+
+
+@pytest.mark.timeout(120)
+def test_sim_run_realtime_prints_the_table_and_writes_the_picture(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    scenario = tmp_path / "headon.yaml"
+    scenario.write_text(
+        (SCENARIOS / "wall-headon.yaml")
+        .read_text()
+        .replace("../worlds/pocket.yaml", str(SCENARIOS.parent / "worlds" / "pocket.yaml"))
+        .replace("duration_s: 10", "duration_s: 6")
+    )
+    out = tmp_path / "out"
+    code = main(["sim", "run", str(scenario), "--realtime", "--out", str(out)])
+    printed = capsys.readouterr().out
+    header, line = printed.splitlines()[:2]
+    assert header.split()[:4] == ["scenario", "seed", "coll", "min"]
+    assert line.split()[:3] == ["wall-headon", "planner", "no"], printed
+    report = json.loads((out / "summary.json").read_text())
+    assert report["trace"] and report["collided"] is False
+    assert (out / "plot.png").read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
+    assert code == (0 if report["passed"] else 1)

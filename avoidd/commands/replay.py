@@ -21,6 +21,12 @@ def configure(name: str, parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--head", help="head to replay (default: the first)")
     parser.add_argument("--out", type=Path, required=True, help="output .jsonl file")
     parser.add_argument(
+        "--plot",
+        type=Path,
+        help="also draw the nearest reading over time (and the truth, when the input has it) "
+        "to this PNG",
+    )
+    parser.add_argument(
         "--realtime",
         action="store_true",
         help="pace frames by their capture times (a recording plays at its recorded speed)",
@@ -54,6 +60,13 @@ def run_replay(args: argparse.Namespace) -> int:
         )
     print(format_summary(summary))
     print(f"wrote {summary.frames} lines to {args.out}")
+    if args.plot is not None and summary.frames:
+        from avoidd.replay_plot import plot_nearest, read_records, series_of
+
+        args.plot.parent.mkdir(parents=True, exist_ok=True)
+        title = f"{head.name}: {summary.frames} frames of {summary.source}"
+        plot_nearest(series_of(read_records(args.out)), title, args.plot)
+        print(f"wrote {args.plot}")
     if summary.frames == 0:
         reason = (
             f"all {summary.dropped} frames were unusable (see the warnings above)"

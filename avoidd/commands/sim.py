@@ -140,16 +140,35 @@ def _report(summary: Any, out_json: Path | None, report: dict[str, Any] | None =
 
 
 def _run_realtime(args: argparse.Namespace) -> int:
+    """A real-time run: the batch table's line, and with ``--out`` the summary and the picture."""
     import asyncio
+    import dataclasses
+    import time
 
+    from avoidd.sim.plot import plot_external
     from avoidd.sim.realtime import RealtimeRun
+    from avoidd.sim.report import external_row, format_table
 
     problems = (
         [] if args.seed is None else ["--seed: a real-time run takes the scenario's own seed"]
     )
     run = RealtimeRun(_scenario_noting(args.scenario, problems, "a real-time run"))
+    started = time.monotonic()
     summary = asyncio.run(run.run(_free_udp_port()))
-    return _report(summary, None if args.out is None else args.out / "summary.json")
+    print(format_table([external_row(summary, time.monotonic() - started)]))
+    if args.out is not None:
+        args.out.mkdir(parents=True, exist_ok=True)
+        samples = [dataclasses.asdict(sample) for sample in summary.samples]
+        summary_path = args.out / "summary.json"
+        report = summary.as_json() | {"trace": samples}
+        summary_path.write_text(json.dumps(report, indent=2) + "\n")
+        plot_path = args.out / "plot.png"
+        plot_external(run, summary, plot_path)
+        for path in (summary_path, plot_path):
+            print(f"wrote {path}")
+    for failure in summary.failures:
+        print(f"FAILED: {failure}")
+    return EXIT_OK if summary.passed else EXIT_FAILURE
 
 
 def run_ardupilot(args: argparse.Namespace) -> int:

@@ -8,7 +8,14 @@ the maximum speed.
 
 from __future__ import annotations
 
-from typing import Any
+import itertools
+import math
+from typing import TYPE_CHECKING, Any
+
+from avoidd.sim.summary import MOVING_M_S
+
+if TYPE_CHECKING:
+    from avoidd.sim.external import ExternalSummary
 
 SPEED_KINDS = ("pole_forest", "boxes")
 """The generators whose runs the speed target is measured on."""
@@ -105,3 +112,37 @@ def _times(results: list[dict[str, Any]]) -> str:
     if holds:
         parts.append(f"stale to zero-velocity setpoint at most {max(holds):.0f} ms")
     return "".join(f"; {part}" for part in parts)
+
+
+def external_row(summary: ExternalSummary, wall_time_s: float | None = None) -> dict[str, Any]:
+    """A real-time or SITL run's summary as one line of :func:`format_table`.
+
+    The speed while moving, the 1 % clearance quantile and the time of the first "no path"
+    come from the position samples and avoidd's state changes; what only the lockstep run
+    counts (side changes per detour, the start delay) reads as none.
+    """
+    samples = summary.samples
+    steps = [(a, b) for a, b in itertools.pairwise(samples) if a.speed_m_s > MOVING_M_S]
+    flown_m = sum(math.dist((a.north_m, a.east_m), (b.north_m, b.east_m)) for a, b in steps)
+    moving_s = sum(b.t_s - a.t_s for a, b in steps)
+    clearances = sorted(s.clearance_m for s in samples)
+    p01 = clearances[int(0.01 * (len(clearances) - 1))] if clearances else None
+    states = [entry.split(" ", 1) for entry in summary.states]
+    no_path = next((float(t) for t, state in states if state == "no path"), None)
+    return {
+        "name": summary.scenario,
+        "seed": summary.mode,
+        "collided": summary.collided,
+        "min_clearance_m": summary.min_clearance_m if samples else None,
+        "clearance_p01_m": p01,
+        "reached": summary.reached_s is not None,
+        "time_to_goal_s": summary.reached_s,
+        "moving_speed_m_s": flown_m / moving_s if moving_s > 0 else None,
+        "start_delay_s": None,
+        "no_path_s": no_path,
+        "detour_side_changes": "-",
+        "end_state": states[-1][-1] if states else "-",
+        "wall_time_s": wall_time_s,
+        "passed": summary.passed,
+        "failures": summary.failures,
+    }
