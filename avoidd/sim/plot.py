@@ -10,12 +10,14 @@ The lockstep run's rows and the real-time and SITL runs' samples draw the same p
 from __future__ import annotations
 
 import math
+import textwrap
 from collections.abc import Sequence
 from dataclasses import dataclass
 from pathlib import Path
-from typing import TYPE_CHECKING
+from typing import TYPE_CHECKING, Any
 
-from avoidd.sim.world import SimBox, SimCylinder, World
+from avoidd.sim.obstacles import Obstacle, SimCylinder
+from avoidd.sim.world import World
 
 if TYPE_CHECKING:
     from matplotlib.axes import Axes
@@ -150,6 +152,8 @@ def plot_track(
         _time_marks(axes, track)
         nearest = min(range(len(track.t_s)), key=lambda k: track.clearance_m[k])
         clearance = track.clearance_m[nearest]
+        if track.world.moves:
+            _movers(axes, track, track.t_s[nearest])
         if math.isfinite(clearance):
             axes.plot(
                 east[nearest],
@@ -173,7 +177,7 @@ def plot_track(
     axes.set_aspect("equal")
     axes.set_xlabel("east (m)")
     axes.set_ylabel("north (m)")
-    axes.set_title(track.title, fontsize=9, wrap=True)
+    figure.suptitle(textwrap.fill(track.title, 90), fontsize=9)
     labels: list[str] = []
     if axes.get_legend_handles_labels()[0]:
         # Below the map, clear of the path and of the colour bar.
@@ -209,26 +213,44 @@ def _time_marks(axes: Axes, track: FlightTrack) -> None:
 
 def _draw_world(axes: Axes, world: World) -> None:
     """The obstacles where they stand at the start (above the ground: lighter)."""
-    from matplotlib.patches import Circle, Polygon
-
     for obstacle in world.obstacles:
         shade = "0.25" if obstacle.bottom_m == 0.0 else "0.6"
-        if isinstance(obstacle, SimCylinder):
-            patch: Circle | Polygon = Circle(
-                (obstacle.east_m, obstacle.north_m), obstacle.radius_m, color=shade
-            )
-        elif isinstance(obstacle, SimBox):
-            c, s = math.cos(obstacle.yaw_rad), math.sin(obstacle.yaw_rad)
-            corners = []
-            for a, b in ((1, 1), (1, -1), (-1, -1), (-1, 1)):
-                along, across = a * obstacle.half_length_m, b * obstacle.half_width_m
-                corners.append(
-                    (
-                        obstacle.east_m + along * s + across * c,
-                        obstacle.north_m + along * c - across * s,
-                    )
+        _draw_obstacle(axes, obstacle, {"color": shade})
+
+
+def _movers(axes: Axes, track: FlightTrack, closest_s: float) -> None:
+    """The moving obstacles' tracks (dotted) and where they were at the closest approach."""
+    moving = [k for k, o in enumerate(track.world.obstacles) if o.motion is not None]
+    times = track.t_s[:: max(len(track.t_s) // 200, 1)]
+    for k in moving:
+        placed = [track.world.at(t)[k] for t in times]
+        axes.plot(
+            [o.east_m for o in placed], [o.north_m for o in placed], ":", color="0.4", linewidth=1
+        )
+    style = {"fill": False, "edgecolor": "red", "linewidth": 1.2, "zorder": 4}
+    then = track.world.at(closest_s)
+    for n, k in enumerate(moving):
+        _draw_obstacle(axes, then[k], style | ({} if n else {"label": "movers at the closest"}))
+
+
+def _draw_obstacle(axes: Axes, obstacle: Obstacle, style: dict[str, Any]) -> None:
+    """One obstacle's footprint."""
+    from matplotlib.patches import Circle, Polygon
+
+    if isinstance(obstacle, SimCylinder):
+        patch: Circle | Polygon = Circle(
+            (obstacle.east_m, obstacle.north_m), obstacle.radius_m, **style
+        )
+    else:
+        c, s = math.cos(obstacle.yaw_rad), math.sin(obstacle.yaw_rad)
+        corners = []
+        for a, b in ((1, 1), (1, -1), (-1, -1), (-1, 1)):
+            along, across = a * obstacle.half_length_m, b * obstacle.half_width_m
+            corners.append(
+                (
+                    obstacle.east_m + along * s + across * c,
+                    obstacle.north_m + along * c - across * s,
                 )
-            patch = Polygon(corners, closed=True, color=shade)
-        else:
-            continue
-        axes.add_patch(patch)
+            )
+        patch = Polygon(corners, closed=True, **style)
+    axes.add_patch(patch)
