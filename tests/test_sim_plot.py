@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import math
 from pathlib import Path
 
 from avoidd.config.sim import load_world
@@ -48,3 +49,24 @@ def test_a_flight_without_samples_still_draws(tmp_path: Path) -> None:
     track = FlightTrack("nothing flown", _wall_world(tmp_path), [], [], [], [], [], 0.9, None)
     extent, labels = plot_track(track, tmp_path / "empty.png")
     assert labels == [] and extent == (-4.0, 4.0, -4.0, 4.0)
+
+
+def test_a_moving_obstacle_is_drawn_where_it_was_at_the_closest_approach(tmp_path: Path) -> None:
+    path = tmp_path / "mover.yaml"
+    path.write_text(
+        "version: 1\nobstacles:\n"
+        "  - {shape: pole, north_m: 5, east_m: -4, motion: {by_ne_m: [0, 8], speed_m_s: 1}}\n"
+    )
+    world = World.from_config(load_world(path))
+    times = [0.1 * k for k in range(61)]
+    north = [t for t in times]
+    clearance = [
+        math.dist((n, 0.0), (5.0, -4.0 + t)) - 0.5 for n, t in zip(north, times, strict=True)
+    ]
+    track = FlightTrack(
+        "crossing", world, times, north, [0.0] * 61, [1.0] * 61, clearance, 0.9, None
+    )
+    _, labels = plot_track(track, tmp_path / "mover.png")
+    assert "movers at the closest" in labels
+    closest = min(range(61), key=lambda k: clearance[k])
+    assert f"closest: {clearance[closest]:.2f} m at {times[closest]:.1f} s" in labels
