@@ -305,6 +305,19 @@ def test_endpoints_over_loopback(tmp_path: Path) -> None:
         assert 0.0 < stages["match"] < 5.0  # seconds, not milliseconds
         sent = {s.labels["type"]: s.value for s in families["avoidd_mavlink_sent_messages"].samples}
         assert sent["HEARTBEAT"] >= 1
+        # The process itself (from /proc), the head's recent rate and its latency histogram.
+        assert families["process_cpu_seconds"].samples[0].value > 0.0
+        assert families["process_resident_memory_bytes"].samples[0].value > 10e6
+        (fps,) = families["avoidd_head_fps"].samples
+        assert fps.labels["head"] == "front" and 0.5 < fps.value < 15.0, fps
+        latency = families["avoidd_capture_to_result_seconds"]
+        assert latency.type == "histogram"
+        buckets = [s for s in latency.samples if s.name.endswith("_bucket")]
+        counts = [s.value for s in buckets]
+        assert counts == sorted(counts) and buckets[-1].labels["le"] == "+Inf"
+        (count,) = [s.value for s in latency.samples if s.name.endswith("_count")]
+        (total_s,) = [s.value for s in latency.samples if s.name.endswith("_sum")]
+        assert count == counts[-1] >= 1 and 0.0 < total_s / count < 5.0
         status, headers, body = rig.get("/snapshot/head/front.jpg")
         assert status == 200 and headers["Content-Type"] == "image/jpeg"
         picture = cv2.imdecode(np.frombuffer(body, np.uint8), cv2.IMREAD_COLOR)

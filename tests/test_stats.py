@@ -6,6 +6,8 @@ from collections import Counter, deque
 from types import SimpleNamespace
 from typing import Any
 
+import pytest
+
 from avoidd.daemon.head import HeadStats
 from avoidd.daemon.stats import DaemonStats, HeadSnapshot, LinkSnapshot, log_line, snapshot
 from avoidd.mavlink.modes import FlightMode
@@ -99,3 +101,29 @@ def test_log_line_reads_as_before() -> None:
         "rx 1234, dropped 0, parse errors 2, unsigned rejected 7"
     )
     assert "; nearest none; " in log_line(_stats(up, True, None))
+
+
+def test_the_latency_histogram_counts_each_frame_in_its_bucket_cumulatively() -> None:
+    from avoidd.daemon.latency import LATENCY_BUCKETS_S, LatencyHistogram
+
+    histogram = LatencyHistogram()
+    for latency_s in (0.01, 0.05, 0.06, 0.3, 7.0):
+        histogram.observe(latency_s)
+    buckets = dict(histogram.cumulative())
+    assert len(buckets) == len(LATENCY_BUCKETS_S) + 1
+    assert buckets[0.025] == 1 and buckets[0.05] == 2  # le: at or below the bound
+    assert buckets[0.075] == 3 and buckets[0.3] == 4 and buckets[2.0] == 4
+    assert buckets[float("inf")] == histogram.count == 5
+    assert histogram.sum_s == pytest.approx(7.42)
+
+
+def test_the_recent_frame_rate_falls_when_frames_stop() -> None:
+    from avoidd.daemon.latency import FrameRate
+
+    rate = FrameRate()
+    assert rate.per_second(0) == 0.0
+    for k in range(21):  # 10 Hz for 2 s
+        rate.tick(k * 100_000_000)
+    assert rate.per_second(2_000_000_000) == pytest.approx(10.0)
+    assert rate.per_second(4_000_000_000) == pytest.approx(5.0)  # 20 frames over 4 s
+    assert rate.per_second(8_000_000_000) == 0.0  # none in the last 5 s

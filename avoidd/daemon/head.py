@@ -18,6 +18,7 @@ from typing import Protocol, TypeVar
 
 from avoidd.config import HeadConfig, PerceptionConfig, SourceConfig
 from avoidd.daemon.framecheck import FrameCheck
+from avoidd.daemon.latency import FrameRate, LatencyHistogram
 from avoidd.errors import BrokenFrame, SourceError, SourceExhausted
 from avoidd.logrepeat import RepeatLimiter
 from avoidd.mavlink import codec as mav
@@ -104,6 +105,8 @@ class HeadStats:
     source_errors: int = 0
     restarts: int = 0
     latency_ms: deque[float] = field(default_factory=lambda: deque(maxlen=256))
+    latency: LatencyHistogram = field(default_factory=LatencyHistogram)
+    rate: FrameRate = field(default_factory=FrameRate)
     match: StageClock = field(default_factory=StageClock)
     finish: StageClock = field(default_factory=StageClock)
 
@@ -423,7 +426,10 @@ class Head:
         self.latest_scan = self.filter.update(result.scan)
         self.latest = result
         self.stats.processed += 1
-        self.stats.latency_ms.append((time.monotonic_ns() - result.t_capture_ns) / 1e6)
+        now_ns = time.monotonic_ns()
+        self.stats.latency_ms.append((now_ns - result.t_capture_ns) / 1e6)
+        self.stats.latency.observe((now_ns - result.t_capture_ns) / 1e9)
+        self.stats.rate.tick(now_ns)
         if self.on_result is not None:
             self.on_result()
 

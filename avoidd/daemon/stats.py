@@ -45,6 +45,11 @@ class HeadSnapshot:
         stale: Whether the head has no fresh data (regardless of the boot grace).
         stage_ms: Milliseconds of each pipeline stage on the latest processed frame (empty
             before the first).
+        recent_fps: Frames processed per second over the last 5 s (what a scrape without a
+            previous snapshot can tell).
+        latency_buckets: Capture-to-result times since start, ``(upper bound in seconds,
+            frames at or below it)`` per bucket, the last bound ``inf``.
+        latency_sum_s: Their sum.
     """
 
     name: str
@@ -61,6 +66,9 @@ class HeadSnapshot:
     mean_latency_ms: float
     stale: bool
     stage_ms: Mapping[str, float] = field(default_factory=lambda: MappingProxyType({}))
+    recent_fps: float = 0.0
+    latency_buckets: tuple[tuple[float, int], ...] = ()
+    latency_sum_s: float = 0.0
 
 
 @dataclass(frozen=True)
@@ -160,6 +168,9 @@ def snapshot(
                 mean_latency_ms=statistics.fmean(latency_ms) if latency_ms else 0.0,
                 stale=not is_fresh(head.t_capture_ns, now_ns, max_age_ns),
                 stage_ms=MappingProxyType(dict(latest.timing_ms) if latest is not None else {}),
+                recent_fps=head.stats.rate.per_second(now_ns),
+                latency_buckets=head.stats.latency.cumulative(),
+                latency_sum_s=head.stats.latency.sum_s,
             )
         )
     scan = current_scan(heads, now_ns, max_age_ns)

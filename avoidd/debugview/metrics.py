@@ -9,7 +9,12 @@ from __future__ import annotations
 from collections.abc import Callable, Iterator, Mapping
 from typing import Any
 
-from prometheus_client.core import CounterMetricFamily, GaugeMetricFamily, Metric
+from prometheus_client.core import (
+    CounterMetricFamily,
+    GaugeMetricFamily,
+    HistogramMetricFamily,
+    Metric,
+)
 from prometheus_client.registry import Collector
 
 from avoidd.daemon.stats import DaemonStats, HeadSnapshot
@@ -76,12 +81,31 @@ def _head_metrics(heads: tuple[HeadSnapshot, ...]) -> Iterator[Metric]:
         "Time each pipeline stage took on the head's latest frame.",
         labels=["head", "stage"],
     )
+    fps = GaugeMetricFamily(
+        "avoidd_head_fps",
+        "Frames the head processed per second over the last 5 s.",
+        labels=["head"],
+    )
+    histogram = HistogramMetricFamily(
+        "avoidd_capture_to_result_seconds",
+        "Capture-to-result time of every frame the head processed since start.",
+        labels=["head"],
+    )
     for head in heads:
         latency.add_metric([head.name], head.mean_latency_ms / 1000.0)
         stale.add_metric([head.name], 1.0 if head.stale else 0.0)
+        fps.add_metric([head.name], round(head.recent_fps, 3))
         for name, ms in head.stage_ms.items():
             stage.add_metric([head.name, name], ms / 1000.0)
-    yield from (latency, stale, stage)
+        if head.latency_buckets:
+            buckets = [(_bound(le), count) for le, count in head.latency_buckets]
+            histogram.add_metric([head.name], buckets, head.latency_sum_s)
+    yield from (latency, stale, stage, fps, histogram)
+
+
+def _bound(upper_s: float) -> str:
+    """A bucket's ``le`` label as Prometheus writes it."""
+    return "+Inf" if upper_s == float("inf") else f"{upper_s:g}"
 
 
 def _link_metrics(stats: DaemonStats) -> Iterator[Metric]:

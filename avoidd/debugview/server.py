@@ -22,7 +22,12 @@ from concurrent.futures import ThreadPoolExecutor
 from typing import TYPE_CHECKING
 
 from aiohttp import web
-from prometheus_client import CONTENT_TYPE_LATEST, CollectorRegistry, generate_latest
+from prometheus_client import (
+    CONTENT_TYPE_LATEST,
+    CollectorRegistry,
+    ProcessCollector,
+    generate_latest,
+)
 
 from avoidd.config import DebugServerConfig
 from avoidd.debugview import metrics, views
@@ -78,6 +83,8 @@ class DebugServer:
         self._closing = False
         self.registry = CollectorRegistry(auto_describe=False)
         self.registry.register(metrics.DaemonCollector(self._snapshot, self._own_counters))
+        # The process's CPU seconds, resident memory and open files, read from /proc.
+        ProcessCollector(registry=self.registry)
 
     def _snapshot(self) -> DaemonStats:
         return self.daemon.snapshot(time.monotonic_ns())
