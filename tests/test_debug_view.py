@@ -23,7 +23,7 @@ from prometheus_client.parser import text_string_to_metric_families
 from avoidd.config import DebugServerConfig, load_config
 from avoidd.debugview import render
 from avoidd.errors import ConfigError
-from tests.helpers import free_udp_port, synthetic_config
+from tests.helpers import free_udp_port, synthetic_config, write_rectified_calibration
 from tests.test_config import BASE, write
 
 TOKEN = "s3cret-token-for-tests"
@@ -180,14 +180,29 @@ def test_planner_arrows_are_turned_into_the_body_frame() -> None:
 class RunningDaemon:
     """A daemon on the synthetic test rig run in a thread with its own event loop."""
 
-    def __init__(self, folder: Path, debug_server: dict[str, Any]) -> None:
+    def __init__(
+        self, folder: Path, debug_server: dict[str, Any], heads: list[str] | None = None
+    ) -> None:
         from avoidd.daemon import Daemon
         from avoidd.loading import load_all
 
+        source = {"kind": "synthetic", "fps": 10, "seed": 3}
+        calibration = str(write_rectified_calibration(folder))
         path = synthetic_config(
             folder,
             f"udpout:127.0.0.1:{free_udp_port()}",  # nobody there: no autopilot
-            source={"kind": "synthetic", "fps": 10, "seed": 3},
+            source=source,
+            heads=None
+            if heads is None
+            else [
+                {
+                    "name": name,
+                    "calibration": calibration,
+                    "source": source | {"seed": 3 + k},
+                    "mount": {"yaw_deg": 60.0 * k},
+                }
+                for k, name in enumerate(heads)
+            ],
             sections={"debug_server": {"enabled": True, "port": 0, **debug_server}},
         )
         config, calibrations = load_all(path)
@@ -235,8 +250,10 @@ class RunningDaemon:
 
 
 @contextlib.contextmanager
-def running(folder: Path, **debug_server: Any) -> Iterator[RunningDaemon]:
-    daemon = RunningDaemon(folder, debug_server)
+def running(
+    folder: Path, heads: list[str] | None = None, **debug_server: Any
+) -> Iterator[RunningDaemon]:
+    daemon = RunningDaemon(folder, debug_server, heads)
     daemon.start()
     try:
         yield daemon
@@ -406,17 +423,18 @@ def test_the_page_in_headless_chromium(tmp_path: Path) -> None:
         "--disable-background-networking",
         "--disable-component-update",
         "--disable-sync",
-        "--window-size=1400,1400",
+        "--window-size=1400,1000",
         f"--user-data-dir={tmp_path / 'chromium-profile'}",
     ):
         options.add_argument(flag)
-    with running(tmp_path, token=TOKEN) as rig:
+    with running(tmp_path, ["front", "right"], token=TOKEN) as rig:
         driver = webdriver.Chrome(service=Service(str(CHROMEDRIVER)), options=options)
         try:
+            driver.set_window_size(1400, 1000)
             driver.get(f"http://127.0.0.1:{rig.server.port}/?token={TOKEN}")
             wait = WebDriverWait(driver, 20)
             wait.until(lambda d: "fps" in d.find_element(By.ID, "status").text)
-            for element_id in ("polar", "head-front"):
+            for element_id in ("polar", "head-front", "head-right"):
                 wait.until(
                     lambda d, i=element_id: (
                         d.execute_script(
@@ -429,22 +447,57 @@ def test_the_page_in_headless_chromium(tmp_path: Path) -> None:
             first = head.screenshot_as_png
             time.sleep(1.0)
             assert head.screenshot_as_png != first  # the stream moves on
-            time.sleep(0.5)
+            time.sleep(2.5)  # a few seconds of history
+            boxes = driver.execute_script(
+                "const out = {};"
+                "for (const id of arguments[0]) {"
+                " const r = document.getElementById(id).getBoundingClientRect();"
+                " out[id] = [r.left, r.top, r.right, r.bottom]; }"
+                "out.viewport = [window.innerWidth, window.innerHeight];"
+                "return out;",
+                ["nearest", "badges", "polar", "history", "head-front", "head-right", "status"],
+            )
+            nearest_px = float(
+                driver.execute_script(
+                    "return parseFloat(getComputedStyle(document.getElementById("
+                    "'nearest')).fontSize)"
+                )
+            )
+            badges = [
+                (b.text, b.value_of_css_property("background-color"))
+                for b in driver.find_elements(By.CSS_SELECTOR, "#badges .badge")
+            ]
             page = tmp_path / "debugview.png"
             assert driver.save_screenshot(str(page))
             polar_png = driver.find_element(By.ID, "polar").screenshot_as_png
+            history_png = driver.find_element(By.ID, "history").screenshot_as_png
             status = driver.find_element(By.ID, "status").text
         finally:
             driver.quit()
     target = os.environ.get("AVOIDD_SCREENSHOT")
     if target:
         shutil.copyfile(page, target)
+    # Everything fits a 1400x1000 window, and the two heads stand side by side.
+    width, height = boxes.pop("viewport")
+    for name, (left, top, right, bottom) in boxes.items():
+        assert 0 <= left < right <= width and 0 <= top < bottom <= height, (name, boxes)
+    front, right = boxes["head-front"], boxes["head-right"]
+    assert abs(front[1] - right[1]) < 2 and right[0] >= front[2], boxes
+    assert front[2] - front[0] >= 400  # each head at least 400 px wide
+    assert nearest_px >= 32
+    # No autopilot on the link: the amber NO LINK badge (no OK beside it).
+    assert [text for text, _ in badges] == ["NO LINK"], badges
+    assert badges[0][1] in ("rgb(176, 122, 0)", "rgba(176, 122, 0, 1)"), badges
     screenshot = cv2.imread(str(page), cv2.IMREAD_COLOR)
     assert screenshot is not None and screenshot.std() > 20.0  # not blank
     polar = cv2.imdecode(np.frombuffer(polar_png, np.uint8), cv2.IMREAD_COLOR)
-    assert polar.shape[0] >= 400
+    assert polar.shape[1] >= 380
     # The plot's colours: unknown bins (no head looks back), clear ones ahead, readings.
     assert _colour_share(polar, render.UNKNOWN_BGR) > 0.15
     assert _colour_share(polar, render.CLEAR_BGR) > 0.002
     assert _colour_share(polar, render.NEAR_BGR) > 0.001
-    assert "front:" in status and "no autopilot heard" in status
+    # The history has drawn its lines (fps in blue, latency in amber).
+    history = cv2.imdecode(np.frombuffer(history_png, np.uint8), cv2.IMREAD_COLOR)
+    assert _colour_share(history, (255, 204, 102), 40) > 0.0001  # #6cf
+    assert _colour_share(history, (102, 204, 255), 40) > 0.0001  # #fc6
+    assert "front:" in status and "right:" in status and "no autopilot heard" in status
