@@ -50,6 +50,7 @@ from avoidd.config import (
     load_config,
 )
 from avoidd.config.connection import LinkSpec, parse_connection
+from avoidd.config.debug_server import VideoConfig
 from avoidd.errors import ConfigError
 from avoidd.loading import load_all
 from tests.helpers import REPO
@@ -456,6 +457,9 @@ avoidance:
 debug_server:
   #@ debug_server
   enabled: false
+  video:
+    #@ debug_server.video
+    enabled: false
 """
 
 SECTION_MODELS: dict[str, type[BaseModel]] = {
@@ -495,6 +499,7 @@ SECTION_MODELS: dict[str, type[BaseModel]] = {
     "avoidance": AvoidanceConfig,
     "avoidance.goal": GoalConfig,
     "debug_server": DebugServerConfig,
+    "debug_server.video": VideoConfig,
 }
 
 

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import importlib.util
 import ipaddress
 from typing import Annotated
 
@@ -23,6 +24,52 @@ def is_loopback(host: str) -> bool:
         return ipaddress.ip_address(host.strip("[]")).is_loopback
     except ValueError:
         return False  # a name: it may resolve to any interface
+
+
+class VideoConfig(Strict):
+    """The debug view's picture as an H.264 video over RTP/UDP that a ground station opens.
+
+    QGroundControl's "UDP h.264 Video Stream" listens on port 5600; Mission Planner, VLC and
+    ffplay open it with the SDP file the daemon writes beside it (see docs/debugview.md). It
+    needs PyAV (``pip install 'avoidd[video]'``).
+
+    Attributes:
+        enabled: Send the video (off by default).
+        host: Where to send it: loopback unless ``allow_remote`` (the ground station's
+            address, for instance).
+        allow_remote: Let ``host`` be an address other than loopback (the picture shows what
+            the cameras see, unencrypted).
+        port: UDP port of the receiver.
+        fps: Frames per second.
+        width_px: Width of the picture (even).
+        height_px: Height of the picture (even).
+        bitrate_kbps: The encoder's target rate.
+        sdp_path: Where to write the stream's SDP description (None: not written).
+    """
+
+    enabled: bool = False
+    host: str = Field("127.0.0.1", min_length=1, max_length=255)
+    allow_remote: bool = False
+    port: int = Field(5600, ge=1, le=65535)
+    fps: float = Field(10.0, ge=1.0, le=30.0)
+    width_px: int = Field(1280, ge=320, le=1920, multiple_of=2)
+    height_px: int = Field(720, ge=240, le=1080, multiple_of=2)
+    bitrate_kbps: int = Field(1500, ge=100, le=20000)
+    sdp_path: str | None = None
+
+    @model_validator(mode="after")
+    def _loopback_unless_allowed(self) -> VideoConfig:
+        if not is_loopback(self.host) and not self.allow_remote:
+            raise ValueError(
+                f"video host '{self.host}' is not a loopback address: the cameras' picture "
+                "would go out on the network; use 127.0.0.1, or set allow_remote: true"
+            )
+        if self.enabled and importlib.util.find_spec("av") is None:
+            raise ValueError(
+                "video.enabled needs PyAV, which is not installed: pip install 'avoidd[video]' "
+                "(or turn the video off)"
+            )
+        return self
 
 
 class DebugServerConfig(Strict):
@@ -51,6 +98,7 @@ class DebugServerConfig(Strict):
         host_names: Names besides loopback ones (``localhost``) the view may be reached by
             (``drone.local``); a request whose ``Host`` is another name is refused, which
             stops DNS rebinding. Addresses (``127.0.0.1``, ``192.168.1.7``) always pass.
+        video: The page's picture as a video a ground station shows (off by default).
     """
 
     enabled: bool = False
@@ -64,6 +112,16 @@ class DebugServerConfig(Strict):
     max_connections: int = Field(32, ge=2, le=256)
     # pydantic copies a mutable default per instance; ruff cannot see that Strict is a model.
     host_names: list[Annotated[str, Field(pattern=_HOST_NAME)]] = []  # noqa: RUF012
+    video: VideoConfig = VideoConfig()
+
+    @model_validator(mode="after")
+    def _video_with_the_view(self) -> DebugServerConfig:
+        if self.video.enabled and not self.enabled:
+            raise ValueError(
+                "video.enabled needs the debug view itself: set debug_server.enabled: true "
+                "(it may stay on loopback), or turn the video off"
+            )
+        return self
 
     @model_validator(mode="after")
     def _viewers_fit(self) -> DebugServerConfig:

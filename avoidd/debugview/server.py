@@ -252,6 +252,13 @@ class DebugServer:
                 self.port,
                 " (token required)" if self.config.token else "",
             )
+            video = self.config.video
+            if video.enabled:
+                from avoidd.debugview.video import run_video
+
+                await run_video(
+                    video, lambda: views.video_drawing(self.daemon, video.width_px, video.height_px)
+                )
             await asyncio.Event().wait()
         finally:
             self._closing = True

@@ -121,6 +121,14 @@ def head_picture(head: Head, max_range_m: float, latest: HeadResult | None = Non
     )
 
 
+def head_snapshot(head: Head, max_range_m: float) -> Snapshot | None:
+    """The head's latest frame as a :data:`Snapshot` of :func:`head_picture` (None: none yet)."""
+    latest = head.latest
+    if latest is None:
+        return None
+    return (latest.seq, latest.t_capture_ns), lambda: head_picture(head, max_range_m, latest)
+
+
 def head_stream(
     head: Head,
     max_range_m: float,
@@ -129,14 +137,7 @@ def head_stream(
     pool: Executor | None = None,
 ) -> Stream:
     """The stream of :func:`head_picture` (a new picture with each processed frame)."""
-
-    def snapshot() -> Snapshot | None:
-        latest = head.latest
-        if latest is None:
-            return None
-        return (latest.seq, latest.t_capture_ns), lambda: head_picture(head, max_range_m, latest)
-
-    return Stream(snapshot, quality, counter, pool)
+    return Stream(lambda: head_snapshot(head, max_range_m), quality, counter, pool)
 
 
 def planner_bearings(daemon: Daemon) -> tuple[float | None, float | None]:
@@ -192,19 +193,36 @@ def polar_status(sent_ns: int | None, now_ns: int, withheld: int, planner: str |
     return f"{text}; {planner}" if planner else text
 
 
+def polar_snapshot(daemon: Daemon) -> Snapshot:
+    """The sent scan with the planner's arrows and state, as a :data:`Snapshot`."""
+    scan, sent_ns = sent_scan(daemon)
+    withheld = daemon.outputs.withheld if daemon.outputs is not None else 0
+    planner = daemon.avoidance.summary() if daemon.avoidance is not None else None
+    status = polar_status(sent_ns, time.monotonic_ns(), withheld, planner)
+    goal_deg, direction_deg = planner_bearings(daemon)
+    # The content, not the time: a steady scene is drawn once, not at every message.
+    key = (scan, status, (goal_deg, direction_deg))
+    return key, lambda: render.polar_panel(scan, 480, status, goal_deg, direction_deg)
+
+
 def polar_stream(
     daemon: Daemon, quality: int, counter: EncodeCounter, pool: Executor | None = None
 ) -> Stream:
     """The stream of the sent scan with the planner's arrows and state."""
+    return Stream(lambda: polar_snapshot(daemon), quality, counter, pool)
 
-    def snapshot() -> Snapshot:
-        scan, sent_ns = sent_scan(daemon)
-        withheld = daemon.outputs.withheld if daemon.outputs is not None else 0
-        planner = daemon.avoidance.summary() if daemon.avoidance is not None else None
-        status = polar_status(sent_ns, time.monotonic_ns(), withheld, planner)
-        goal_deg, direction_deg = planner_bearings(daemon)
-        # The content, not the time: a steady scene is drawn once, not at every message.
-        key = (scan, status, (goal_deg, direction_deg))
-        return key, lambda: render.polar_panel(scan, 480, status, goal_deg, direction_deg)
 
-    return Stream(snapshot, quality, counter, pool)
+def video_drawing(daemon: Daemon, width_px: int, height_px: int) -> Callable[[], Image | None]:
+    """The state to show now as the video's frame (taken now, drawn when called)."""
+    from avoidd.debugview.video import compose
+
+    max_range_m = daemon.config.mavlink.obstacle_distance.max_distance_cm / 100.0
+    polar = polar_snapshot(daemon)[1]
+    taken = [head_snapshot(head, max_range_m) for head in daemon.heads]
+    heads = [snapshot[1] for snapshot in taken if snapshot is not None]
+
+    def draw() -> Image:
+        pictures = [picture for picture in (h() for h in heads) if picture is not None]
+        return compose(polar(), pictures, width_px, height_px)
+
+    return draw
