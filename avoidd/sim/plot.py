@@ -14,7 +14,7 @@ import textwrap
 from collections.abc import Sequence
 from dataclasses import dataclass
 from pathlib import Path
-from typing import TYPE_CHECKING, Any
+from typing import TYPE_CHECKING, Any, Protocol
 
 from avoidd.sim.obstacles import Obstacle, SimCylinder
 from avoidd.sim.world import World
@@ -57,42 +57,56 @@ class FlightTrack:
     goal_ne_m: tuple[float, float] | None
 
 
-def plot_run(run: LockstepRun, summary: Summary, path: Path) -> None:
-    """Draw a lockstep run to a PNG (east to the right, north up)."""
-    rows = run.rows
-    goal = None if run.goal is None else (run.goal.north_m, run.goal.east_m)
-    verdict = "passed" if summary.passed else "FAILED: " + "; ".join(summary.failures)
-    title = f"{summary.name} (seed {summary.seed}): {summary.end_state}, {verdict}"
-    track = FlightTrack(
+class Step(Protocol):
+    """One step of a flight as a lockstep row or a position sample gives it."""
+
+    t_s: float
+    north_m: float
+    east_m: float
+    speed_m_s: float
+    clearance_m: float
+
+
+def _track(
+    title: str,
+    world: World,
+    steps: Sequence[Step],
+    needed_m: float,
+    goal: tuple[float, float] | None,
+) -> FlightTrack:
+    return FlightTrack(
         title,
-        run.world,
-        [r.t_s for r in rows],
-        [r.north_m for r in rows],
-        [r.east_m for r in rows],
-        [r.speed_m_s for r in rows],
-        [r.clearance_m for r in rows],
-        run.scenario.avoidance.margin_m - 0.1,
+        world,
+        [s.t_s for s in steps],
+        [s.north_m for s in steps],
+        [s.east_m for s in steps],
+        [s.speed_m_s for s in steps],
+        [s.clearance_m for s in steps],
+        needed_m,
         goal,
     )
-    plot_track(track, path)
+
+
+def _verdict(passed: bool, failures: Sequence[str]) -> str:
+    return "passed" if passed else "FAILED: " + "; ".join(failures)
+
+
+def plot_run(run: LockstepRun, summary: Summary, path: Path) -> None:
+    """Draw a lockstep run to a PNG (east to the right, north up)."""
+    verdict = _verdict(summary.passed, summary.failures)
+    title = f"{summary.name} (seed {summary.seed}): {summary.end_state}, {verdict}"
+    needed_m = run.scenario.avoidance.margin_m - 0.1
+    goal = None if run.goal is None else (run.goal.north_m, run.goal.east_m)
+    plot_track(_track(title, run.world, run.rows, needed_m, goal), path)
 
 
 def plot_external(run: ExternalRun, summary: ExternalSummary, path: Path) -> None:
     """Draw a real-time or SITL run (its position samples) to a PNG."""
-    samples = summary.samples
-    verdict = "passed" if summary.passed else "FAILED: " + "; ".join(summary.failures)
     end = summary.states[-1].split(" ", 1)[-1] if summary.states else "-"
-    track = FlightTrack(
-        f"{summary.scenario} ({summary.mode}): {end}, {verdict}",
-        run.world,
-        [s.t_s for s in samples],
-        [s.north_m for s in samples],
-        [s.east_m for s in samples],
-        [s.speed_m_s for s in samples],
-        [s.clearance_m for s in samples],
-        run.scenario.avoidance.margin_m - 0.1,
-        (run.goal[0], run.goal[1]),
-    )
+    title = f"{summary.scenario} ({summary.mode}): {end}, "
+    title += _verdict(summary.passed, summary.failures)
+    needed_m = run.scenario.avoidance.margin_m - 0.1
+    track = _track(title, run.world, summary.samples, needed_m, (run.goal[0], run.goal[1]))
     plot_track(track, path)
 
 
