@@ -472,6 +472,39 @@ def test_the_page_in_headless_chromium(tmp_path: Path) -> None:
             polar_png = driver.find_element(By.ID, "polar").screenshot_as_png
             history_png = driver.find_element(By.ID, "history").screenshot_as_png
             status = driver.find_element(By.ID, "status").text
+            # The page's own drawing of a state this rig cannot show: a head gone stale
+            # beside a fresh one, the autopilot heard, nothing near.
+            stale_head = {
+                "processed_fps": 0.0,
+                "captured_fps": 0.0,
+                "skipped_fps": 0.0,
+                "mean_latency_ms": 0.0,
+            }
+            driver.execute_script(
+                "clearInterval(timer); show(arguments[0]);",
+                {
+                    "heads": [
+                        stale_head | {"name": "front", "stale": False, "processed_fps": 10.0},
+                        stale_head | {"name": "right", "stale": True},
+                    ],
+                    "link": {
+                        "up": True,
+                        "autopilot": "ArduPilot",
+                        "system_id": 1,
+                        "mode": "GUIDED",
+                        "armed": True,
+                    },
+                    "healthy": False,
+                    "fresh_data": True,
+                    "nearest": None,
+                    "planner": None,
+                },
+            )
+            stale_badges = [
+                (b.text, b.value_of_css_property("background-color"))
+                for b in driver.find_elements(By.CSS_SELECTOR, "#badges .badge")
+            ]
+            nothing_near = driver.find_element(By.ID, "nearest").text
         finally:
             driver.quit()
     target = os.environ.get("AVOIDD_SCREENSHOT")
@@ -488,6 +521,10 @@ def test_the_page_in_headless_chromium(tmp_path: Path) -> None:
     # No autopilot on the link: the amber NO LINK badge (no OK beside it).
     assert [text for text, _ in badges] == ["NO LINK"], badges
     assert badges[0][1] in ("rgb(176, 122, 0)", "rgba(176, 122, 0, 1)"), badges
+    # A stale head: its red badge, and neither NO LINK (the link is up) nor OK.
+    assert [text for text, _ in stale_badges] == ["STALE right"], stale_badges
+    assert stale_badges[0][1] in ("rgb(179, 38, 30)", "rgba(179, 38, 30, 1)"), stale_badges
+    assert nothing_near == "nothing near"
     screenshot = cv2.imread(str(page), cv2.IMREAD_COLOR)
     assert screenshot is not None and screenshot.std() > 20.0  # not blank
     polar = cv2.imdecode(np.frombuffer(polar_png, np.uint8), cv2.IMREAD_COLOR)

@@ -92,45 +92,47 @@ function drawHistory() {
   chart(ctx, 70, 70, "fps", "", history.map(h => h.fps), "#6cf");
   chart(ctx, 140, 70, "latency", "ms", history.map(h => h.latency), "#fc6");
 }
+function show(s) {
+  const heads = s.heads.map(h =>
+    h.name + ": " + h.processed_fps.toFixed(1) + " fps (captured " +
+    h.captured_fps.toFixed(1) + ", skipped " + h.skipped_fps.toFixed(1) + "), latency " +
+    h.mean_latency_ms.toFixed(0) + " ms" + (h.stale ? ", STALE" : "")).join("; ");
+  const l = s.link;
+  const link = l.up ? ("link up: " + l.autopilot + " sys " + l.system_id + ", mode " +
+    l.mode + ", armed " + yn(l.armed)) : "no autopilot heard";
+  const health = s.healthy ? "healthy" : (s.fresh_data ? "degraded" : "NO FRESH DATA");
+  document.getElementById("status").textContent =
+    heads + "\\n" + link + "; " + health + (s.planner ? "; " + s.planner : "");
+  const near = document.getElementById("nearest");
+  if (s.nearest) {
+    near.innerHTML = s.nearest.distance_m.toFixed(2) + " m <small>at " +
+      s.nearest.bearing_deg.toFixed(0) + "&deg;</small>";
+  } else {
+    near.innerHTML = "<small>" + (s.fresh_data ? "nothing near" : "no fresh data") +
+      "</small>";
+  }
+  const badges = document.getElementById("badges");
+  badges.replaceChildren();
+  s.heads.filter(h => h.stale).forEach(h => badges.append(badge("STALE " + h.name, "bad")));
+  if (!l.up) { badges.append(badge("NO LINK", "warn")); }
+  if (s.healthy && l.up) { badges.append(badge("OK", "ok")); }
+  const fps = s.heads.reduce((sum, h) => sum + h.processed_fps, 0);
+  const latency = Math.max(0, ...s.heads.map(h => h.mean_latency_ms));
+  history.push({nearest: s.nearest ? s.nearest.distance_m : null, fps: fps,
+                latency: latency});
+  while (history.length > 60) { history.shift(); }
+  drawHistory();
+}
 async function refresh() {
   try {
     const response = await fetch("/api/stats" + query, {cache: "no-store"});
-    const s = await response.json();
-    const heads = s.heads.map(h =>
-      h.name + ": " + h.processed_fps.toFixed(1) + " fps (captured " +
-      h.captured_fps.toFixed(1) + ", skipped " + h.skipped_fps.toFixed(1) + "), latency " +
-      h.mean_latency_ms.toFixed(0) + " ms" + (h.stale ? ", STALE" : "")).join("; ");
-    const l = s.link;
-    const link = l.up ? ("link up: " + l.autopilot + " sys " + l.system_id + ", mode " +
-      l.mode + ", armed " + yn(l.armed)) : "no autopilot heard";
-    const health = s.healthy ? "healthy" : (s.fresh_data ? "degraded" : "NO FRESH DATA");
-    document.getElementById("status").textContent =
-      heads + "\\n" + link + "; " + health + (s.planner ? "; " + s.planner : "");
-    const near = document.getElementById("nearest");
-    if (s.nearest) {
-      near.innerHTML = s.nearest.distance_m.toFixed(2) + " m <small>at " +
-        s.nearest.bearing_deg.toFixed(0) + "&deg;</small>";
-    } else {
-      near.innerHTML = "<small>" + (s.fresh_data ? "nothing near" : "no fresh data") +
-        "</small>";
-    }
-    const badges = document.getElementById("badges");
-    badges.replaceChildren();
-    s.heads.filter(h => h.stale).forEach(h => badges.append(badge("STALE " + h.name, "bad")));
-    if (!l.up) { badges.append(badge("NO LINK", "warn")); }
-    if (s.healthy && l.up) { badges.append(badge("OK", "ok")); }
-    const fps = s.heads.reduce((sum, h) => sum + h.processed_fps, 0);
-    const latency = Math.max(0, ...s.heads.map(h => h.mean_latency_ms));
-    history.push({nearest: s.nearest ? s.nearest.distance_m : null, fps: fps,
-                  latency: latency});
-    while (history.length > 60) { history.shift(); }
-    drawHistory();
+    show(await response.json());
   } catch (error) {
     document.getElementById("status").textContent = "stats unavailable: " + error;
   }
 }
 refresh();
-setInterval(refresh, 1000);
+const timer = setInterval(refresh, 1000);
 </script>
 </body>
 </html>
