@@ -39,6 +39,7 @@ COMMANDS: dict[str, tuple[str, str]] = {
     "bench-debugview": ("bench", "CPU of the debug view: off, on without a viewer, with one"),
     "sim": ("sim", "closed-loop scenarios in the simulator: run one, or a batch"),
     "goto": ("goto", "send the running avoidd a goal, as a ground station does"),
+    "cameras": ("cameras", "list the V4L2 cameras attached, with a config snippet for each"),
     "calibrate": ("calibrate", "stereo calibration from left/ and right/ images of a board"),
     "render-board": ("calibrate", "render board pairs through a virtual rig (to try calibrate)"),
     "import-calibration": (
