@@ -127,3 +127,67 @@ def detect(board: Board, grey: Image) -> Detection | None:
     refined = cv2.cornerSubPix(grey, charuco_px, (2, 2), (-1, -1), _SUBPIX_CRITERIA)
     corners_px = np.asarray(refined, np.float32).reshape(-1, 2)
     return Detection(np.asarray(ids, np.int32).ravel(), corners_px)
+
+
+BLUR_VARIANCE = 30.0
+"""An image whose Laplacian varies less than this (grey levels squared) is too blurred to
+find corners in: a sharp board's black and white edges give hundreds to thousands."""
+
+
+def why_not_found(board: Board, grey: Image) -> str:
+    """Why :func:`detect` found no board in an image, as far as can be told.
+
+    The image is too blurred (motion, focus), or a chessboard of another size is in it (the
+    common mistake of giving the inner corners as the squares, or across and down swapped),
+    or the board is cut off or hidden.
+    """
+    if float(grey.std()) < 5.0:
+        return "board not found (the image is almost one shade: covered, dark or overexposed)"
+    sharpness = float(cv2.Laplacian(grey, cv2.CV_64F).var())
+    if sharpness < BLUR_VARIANCE:
+        return (
+            f"blurred (sharpness {sharpness:.0f}, a sharp board gives {BLUR_VARIANCE:.0f} or more)"
+        )
+    if board.pattern == "chessboard":
+        given = board.inner_corners
+        for other in _other_sizes(given):
+            found, _ = cv2.findChessboardCorners(grey, other, flags=cv2.CALIB_CB_FAST_CHECK)
+            if found:
+                return (
+                    f"the board found has {other[0] + 1}x{other[1] + 1} squares "
+                    f"({other[0]}x{other[1]} inner corners), not the {board.squares_x}x"
+                    f"{board.squares_y} given: pass --squares {other[0] + 1}x{other[1] + 1}"
+                )
+    return "board not found (cut off, hidden or lit unevenly? the whole board must be in view)"
+
+
+def _other_sizes(given: tuple[int, int]) -> list[tuple[int, int]]:
+    """Chessboard sizes (inner corners) one might have meant instead of ``given``."""
+    cols, rows = given
+    sizes = [(rows, cols)]
+    for d_cols in (-1, 0, 1, 2, -2):
+        for d_rows in (-1, 0, 1, 2, -2):
+            sizes.append((cols + d_cols, rows + d_rows))
+    seen: list[tuple[int, int]] = []
+    for size in sizes:
+        if size != given and min(size) >= 3 and size not in seen:
+            seen.append(size)
+    return seen
+
+
+def printable(board: Board, dpi: float, margin_mm: float = 10.0) -> Image:
+    """The board on white with a margin, at ``dpi`` (printed at 100 %, squares are true size)."""
+    px_per_mm = dpi / 25.4
+    square_px = round(1000.0 * board.square_m * px_per_mm)
+    if square_px < 8:
+        raise ValueError(
+            f"{1000 * board.square_m:g} mm squares are {square_px} px at {dpi:g} dpi: raise --dpi"
+        )
+    margin_px = round(margin_mm * px_per_mm)
+    image = board.image(square_px)
+    return np.asarray(
+        cv2.copyMakeBorder(
+            image, margin_px, margin_px, margin_px, margin_px, cv2.BORDER_CONSTANT, value=255
+        ),
+        np.uint8,
+    )

@@ -41,6 +41,7 @@ COMMANDS: dict[str, tuple[str, str]] = {
     "goto": ("goto", "send the running avoidd a goal, as a ground station does"),
     "cameras": ("cameras", "list the V4L2 cameras attached, with a config snippet for each"),
     "calibrate": ("calibrate", "stereo calibration from left/ and right/ images of a board"),
+    "print-board": ("calibrate", "a calibration board as a PNG to print at true size"),
     "render-board": ("calibrate", "render board pairs through a virtual rig (to try calibrate)"),
     "import-calibration": (
         "calibrate",

@@ -11,11 +11,12 @@ from pathlib import Path
 import cv2
 import numpy as np
 
-from avoidd.calibrate.board import Board, detect
+from avoidd.calibrate.board import Board, detect, printable, why_not_found
 from avoidd.calibrate.check import board_dy_px, matched_dy_px, rectify_pair, valid_masks
 from avoidd.calibrate.importers import euroc_stereo, middlebury_rectified
 from avoidd.calibrate.render import default_rig, write_pairs
 from avoidd.calibrate.stereo import (
+    CalibrationFailed,
     PairObservation,
     PairReport,
     StereoCalibration,
@@ -50,6 +51,11 @@ def configure(name: str, parser: argparse.ArgumentParser) -> None:
         _add_board_options(parser)
         parser.add_argument("--out", type=Path, required=True, help="calibration YAML to write")
         parser.set_defaults(handler=_cmd_calibrate)
+    elif name == "print-board":
+        parser.add_argument("out", type=Path, help="PNG to write (print it at 100 %%)")
+        _add_board_options(parser)
+        parser.add_argument("--dpi", type=float, default=300.0, help="printer resolution")
+        parser.set_defaults(handler=_cmd_print_board)
     elif name == "render-board":
         parser.add_argument("folder", type=Path, help="where left/ and right/ are written")
         _add_board_options(parser)
@@ -87,6 +93,53 @@ def _board(args: argparse.Namespace) -> Board:
 def _cmd_calibrate(args: argparse.Namespace) -> int:
     run_calibrate(args.folder, _board(args), args.out)
     return EXIT_OK
+
+
+def _cmd_print_board(args: argparse.Namespace) -> int:
+    board = _board(args)
+    if not 72.0 <= args.dpi <= 1200.0:
+        raise ConfigError([f"--dpi {args.dpi:g}: give 72 to 1200 (the printer's resolution)"])
+    try:
+        image = printable(board, args.dpi)
+    except ValueError as exc:
+        raise ConfigError([f"print-board: {exc}"]) from exc
+    args.out.parent.mkdir(parents=True, exist_ok=True)
+    # The resolution in the file, so that a viewer prints it at true size.
+    ok = cv2.imwrite(str(args.out), image)
+    if not ok:
+        raise SourceError(f"{args.out}: cannot write the image")
+    _set_png_dpi(args.out, args.dpi)
+    width_mm, height_mm = (25.4 * n / args.dpi for n in (image.shape[1], image.shape[0]))
+    sheet = _sheet(width_mm, height_mm)
+    print(
+        f"wrote {args.out}: {board.pattern} {board.squares_x}x{board.squares_y} squares of "
+        f"{1000 * board.square_m:g} mm, {width_mm:.0f} x {height_mm:.0f} mm with its margin "
+        f"({sheet}). Print at 100 % (no fit to page), measure one square, and give that size "
+        f"to avoidd calibrate --square-mm; glue the sheet to something flat."
+    )
+    return EXIT_OK
+
+
+def _sheet(width_mm: float, height_mm: float) -> str:
+    """The smallest common paper the board fits on."""
+    short, long = sorted((width_mm, height_mm))
+    for name, (a, b) in (("A4", (210, 297)), ("US letter", (216, 279)), ("A3", (297, 420))):
+        if short <= a and long <= b:
+            return f"fits {name}"
+    return "larger than A3: print at a copy shop, or give smaller --square-mm"
+
+
+def _set_png_dpi(path: Path, dpi: float) -> None:
+    """Put a pHYs chunk (pixels per metre) after the PNG's header chunk."""
+    import struct
+    import zlib
+
+    data = path.read_bytes()
+    per_m = round(dpi / 0.0254)
+    body = b"pHYs" + struct.pack(">IIB", per_m, per_m, 1)
+    chunk = struct.pack(">I", 9) + body + struct.pack(">I", zlib.crc32(body) & 0xFFFFFFFF)
+    end_of_header = 8 + 25  # signature, then IHDR: length, type, 13 bytes, CRC
+    path.write_bytes(data[:end_of_header] + chunk + data[end_of_header:])
 
 
 def _cmd_render_board(args: argparse.Namespace) -> int:
@@ -182,11 +235,15 @@ def run_calibrate(folder: Path, board: Board, out: Path) -> StereoCalibration:
             raise SourceError(f"{pair.left}: every image must have the same size as the first")
         size = shape
         name = pair.left.name
-        observations.append(observe_pair(board, name, detect(board, left), detect(board, right)))
+        observations.append(_observe(board, name, left, right))
         progress.step(name)
     if size is None:
         raise SourceError(f"{folder}: no image pairs")
-    result = calibrate(size, observations)
+    try:
+        result = calibrate(size, observations)
+    except CalibrationFailed:
+        print(format_rejections(observations))
+        raise
     print(format_calibration(result))
     used = sum(1 for p in result.pairs if p.used)
     rig = result.rig
@@ -203,6 +260,30 @@ def run_calibrate(folder: Path, board: Board, out: Path) -> StereoCalibration:
     )
     print(f"wrote {out}")
     return result
+
+
+def _observe(board: Board, name: str, left: Image, right: Image) -> PairObservation | PairReport:
+    """One pair's shared corners, or why it cannot be used (the board's absence explained)."""
+    found_left, found_right = detect(board, left), detect(board, right)
+    observation = observe_pair(board, name, found_left, found_right)
+    if found_left is None or found_right is None:
+        side = "left" if found_left is None else "right"
+        why = why_not_found(board, left if found_left is None else right)
+        both = found_left is None and found_right is None
+        where = "both images" if both else f"the {side} image"
+        return PairReport(name, False, f"{where}: {why}")
+    return observation
+
+
+def format_rejections(observations: list[PairObservation | PairReport]) -> str:
+    """Every pair that cannot be used, with its reason (printed when too few are left)."""
+    lines = ["pair                          why it was not used"]
+    for item in observations:
+        if isinstance(item, PairReport) and not item.used:
+            lines.append(f"{item.name[:28]:<28}  {item.reason}")
+    usable = sum(isinstance(item, PairObservation) for item in observations)
+    lines.append(f"{usable} of {len(observations)} pairs usable")
+    return "\n".join(lines)
 
 
 def format_calibration(result: StereoCalibration) -> str:
