@@ -850,3 +850,22 @@ def test_at_a_corridors_turn_the_camera_looks_at_the_near_side_of_the_way_on() -
     planner.observe_scan(looked, int(1.1 * S), _pose(1.1, yaw=south_west))
     decision = planner.decide(int(1.15 * S), _pose(1.15, yaw=south_west), goal, fresh=True)
     assert decision.state == "moving" and decision.direction_deg == pytest.approx(270.0)
+
+
+def test_a_heads_older_frame_merged_in_after_anothers_newer_one_is_remembered() -> None:
+    # Two heads: the front one's frame at 1.00 s is taken in first; the right one's frame,
+    # captured at 0.95 s, reaches the merge after it. Its bins are new: they are remembered.
+    planner = _planner()
+    front = _scan({0: 6.0}, range(-6, 7))
+    planner.observe_scan(front, S, _pose(1.0), None, np.full(72, S, dtype=np.int64))
+    merged = front.copy()
+    merged[18] = 4.0  # the right head's reading, 90 degrees right
+    times = np.full(72, S, dtype=np.int64)
+    times[15:22] = S - 50_000_000
+    planner.observe_scan(merged, S, _pose(1.0), None, times)
+    right = np.hypot(*(planner.memory.north_east - [0.0, 4.0]).T)
+    assert float(np.min(right)) < 0.1
+    # The same merge again adds nothing.
+    count = planner.memory.north_east.shape[0]
+    planner.observe_scan(merged, S, _pose(1.0), None, times)
+    assert planner.memory.north_east.shape[0] == count

@@ -52,7 +52,7 @@ from avoidd.planner.tuning import DEFAULT, Tuning
 from avoidd.planner.types import Decision, Goal, Pose
 from avoidd.planner.view import View
 from avoidd.planner.visibility import VisibilityGrid
-from avoidd.types import SECTOR_WIDTH_DEG
+from avoidd.types import SECTOR_COUNT, SECTOR_WIDTH_DEG
 
 __all__ = [
     "AUTOPILOT_RESPONSE_S",
@@ -90,6 +90,8 @@ class Planner:
         self.visibility = VisibilityGrid()
         self.back_away = BackAway(tuning)
         self._last_scan_ns = -1
+        self._taken_ns = np.full(SECTOR_COUNT, -1, dtype=np.int64)
+        """Per body bin, the capture time of the newest reading taken into the memory."""
         self._last_decide_ns: int | None = None
         self._back_since_ns: int | None = None
         self.gaps = GapFollower(0.0)
@@ -160,15 +162,24 @@ class Planner:
                 pose it would land where the vehicle's turn since then carried it (4 degrees
                 of yaw put a gap's edge 0.2 m into a 3.5 m gap at 3 m, and the gap closed).
         """
-        if t_capture_ns <= self._last_scan_ns:
+        times = (
+            np.full(distance_m.shape, t_capture_ns, dtype=np.int64)
+            if reading_t_ns is None
+            else np.asarray(reading_t_ns, dtype=np.int64)
+        )
+        # Per bin: a head whose frame was captured before another's newest still brings new
+        # readings for its own bins when its scan is merged in after.
+        # An unknown bin takes nothing in: it leaves the bin open to another head's reading.
+        new = (times > self._taken_ns) & ~np.isnan(distance_m)
+        if t_capture_ns > self._last_scan_ns:
+            self.view.observe(distance_m)
+            self._last_scan_ns = t_capture_ns
+        if not new.any():
             return
-        self.view.observe(distance_m)
-        if reading_t_ns is not None:
-            new = np.asarray(reading_t_ns) > self._last_scan_ns
-            distance_m = np.where(new, distance_m, np.nan).astype(np.float32)
-            if points_frd_m is not None:
-                points_frd_m = np.where(new[:, None], points_frd_m, np.nan).astype(np.float32)
-        self._last_scan_ns = t_capture_ns
+        self._taken_ns = np.where(new, times, self._taken_ns)
+        distance_m = np.where(new, distance_m, np.nan).astype(np.float32)
+        if points_frd_m is not None:
+            points_frd_m = np.where(new[:, None], points_frd_m, np.nan).astype(np.float32)
         where = (pose_at_capture.north_m, pose_at_capture.east_m)
         self.memory.add_scan(
             distance_m,
