@@ -404,6 +404,16 @@ def _colour_share(image: np.ndarray, bgr: tuple[int, int, int], tolerance: int =
     return float(close.mean())
 
 
+def _badges(driver: Any) -> list[tuple[str, str]]:
+    """The badges' texts and colours, read in one script (the page redraws them every second,
+    so elements looked up one by one may be gone by the time they are read)."""
+    found = driver.execute_script(
+        "return Array.from(document.querySelectorAll('#badges .badge')).map("
+        "b => [b.textContent, getComputedStyle(b).backgroundColor]);"
+    )
+    return [(str(text), str(colour)) for text, colour in found]
+
+
 def test_the_page_in_headless_chromium(tmp_path: Path) -> None:
     if not (CHROMIUM.exists() and CHROMEDRIVER.exists()):
         pytest.skip("Debian's chromium and chromium-driver are not installed (.ci/run does it)")
@@ -463,10 +473,7 @@ def test_the_page_in_headless_chromium(tmp_path: Path) -> None:
                     "'nearest')).fontSize)"
                 )
             )
-            badges = [
-                (b.text, b.value_of_css_property("background-color"))
-                for b in driver.find_elements(By.CSS_SELECTOR, "#badges .badge")
-            ]
+            badges = _badges(driver)
             page = tmp_path / "debugview.png"
             assert driver.save_screenshot(str(page))
             polar_png = driver.find_element(By.ID, "polar").screenshot_as_png
@@ -500,10 +507,7 @@ def test_the_page_in_headless_chromium(tmp_path: Path) -> None:
                     "planner": None,
                 },
             )
-            stale_badges = [
-                (b.text, b.value_of_css_property("background-color"))
-                for b in driver.find_elements(By.CSS_SELECTOR, "#badges .badge")
-            ]
+            stale_badges = _badges(driver)
             nothing_near = driver.find_element(By.ID, "nearest").text
         finally:
             driver.quit()

@@ -17,6 +17,7 @@ LAYERS: list[tuple[str, tuple[str, ...]]] = [
             "avoidd.daemon",
             "avoidd.debugview",
             "avoidd.replay",
+            "avoidd.replay_plot",
             "avoidd.record",
             "avoidd.sim",
             "avoidd.evaluation",
